@@ -1,0 +1,1 @@
+"""Attention window, interest, spatial map, straightforward and Q-learning policies."""

@@ -1,0 +1,1 @@
+"""Orchestrator, roger command line, experiments and in-process core loop."""

@@ -1,0 +1,1 @@
+"""Shared plain-Python types and errors of the Roger packages (no ROS)."""

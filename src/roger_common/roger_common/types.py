@@ -1,0 +1,336 @@
+"""Plain data types shared by the core of every Roger package.
+
+No ROS here: these dataclasses are what the core modules take and return. The ROS
+nodes convert them to and from messages in each package's ``conversions.py``.
+
+Frames and units: the robot frame has its origin on the ground under Roger's body,
+x forward, y to the left, z up; metres, kilograms, radians, seconds of simulated time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+#: Layout of the feature vector of a region of interest (section 3.1 of the paper):
+#: intensity I^(k), texture T^(k), stereo S^(k) for the three LoG resolutions k = 1, 2, 3
+#: (equations 1-3), size D (equation 4) and weight W (equation 5).
+FEATURE_NAMES: tuple[str, ...] = (
+    "I1", "I2", "I3",
+    "T1", "T2", "T3",
+    "S1", "S2", "S3",
+    "D",
+    "W",
+)
+FEATURE_DIM: int = len(FEATURE_NAMES)
+#: Index of the weight feature, unknown until a haptic improvement measured it.
+WEIGHT_INDEX: int = FEATURE_NAMES.index("W")
+
+
+class Action(IntEnum):
+    """The four actions of section 4.2; one control cycle executes exactly one."""
+
+    ATTENTION_SHIFT = 0
+    VISUAL_IMPROVEMENT = 1
+    HAPTIC_IMPROVEMENT = 2
+    MAP_UPDATE = 3
+
+
+#: Actions that move a controller (a map update is bookkeeping only).
+PHYSICAL_ACTIONS: frozenset[Action] = frozenset(
+    {Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT}
+)
+
+
+class ControllerState(IntEnum):
+    """Status of one servo controller, as the original Roger simulator reported it."""
+
+    NO_REFERENCE = 0
+    TRANSIENT = 1
+    CONVERGED = 2
+    FAILED = 3
+
+
+class MatchOutcome(IntEnum):
+    """Result of a match in the associative memory (section 4.2, cases a-c)."""
+
+    IDENTIFIED = 0
+    NEW = 1
+    UNDETERMINED = 2
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A physical action for the simulator to execute.
+
+    Attributes:
+        goal_id: Unique, increasing id; every reply (convergence, frames) carries it.
+        action: One of the physical actions (never MAP_UPDATE).
+        target: Point to look at or to reach, robot frame, metres.
+        arm: For a haptic improvement: 0 left, 1 right, -1 let the simulator choose
+            (the arm on the target's side).
+    """
+
+    goal_id: int
+    action: Action
+    target: tuple[float, float, float]
+    arm: int = -1
+
+
+@dataclass(frozen=True)
+class HapticReading:
+    """What an arm felt during a haptic improvement.
+
+    Attributes:
+        arm: 0 left, 1 right.
+        contact: True when the hand touched an object.
+        position: Where the hand touched it, robot frame, metres.
+        weight: Measured weight in kilograms (noisy); NaN without contact.
+    """
+
+    arm: int
+    contact: bool
+    position: tuple[float, float, float]
+    weight: float
+
+
+@dataclass(frozen=True)
+class ControllerReport:
+    """Status of the five controllers after a goal, plus how long they took."""
+
+    goal_id: int
+    states: dict[str, ControllerState]
+    sim_time: float
+    physics_steps: int
+
+    @property
+    def converged(self) -> bool:
+        """True when no controller failed and none is still transient."""
+        return all(
+            s in (ControllerState.CONVERGED, ControllerState.NO_REFERENCE)
+            for s in self.states.values()
+        )
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole model of one retina.
+
+    Attributes:
+        width, height: Image size in pixels.
+        focal_px: Focal length in pixels (fx = fy); principal point at the centre.
+    """
+
+    width: int
+    height: int
+    focal_px: float
+
+
+@dataclass(frozen=True)
+class EyePose:
+    """Pose of one eye's camera in the robot frame.
+
+    Attributes:
+        position: Optical centre, metres.
+        rotation: 3x3 matrix whose columns are the camera axes in the robot frame,
+            OpenCV convention: column 0 = image right (+u), column 1 = image down (+v),
+            column 2 = optical axis (forward).
+    """
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+
+@dataclass
+class StereoFrame:
+    """One stereo pair from the retinas, with the geometry needed to triangulate.
+
+    Attributes:
+        stamp: Simulated time of the render, seconds.
+        goal_id: Goal after whose convergence the frame was rendered (0: none yet).
+        left, right: Retinal intensity images, float32 in [0, 1], shape (H, W).
+        camera: Intrinsics shared by both eyes.
+        left_pose, right_pose: Extrinsics of each eye.
+        exposures: How many renders were averaged into the images (a visual
+            improvement integrates several, which lowers pixel noise).
+        haptic: Reading of the last haptic improvement for this goal, if any.
+        left_labels, right_labels: Ground truth only (evaluation, never policy or
+            memory): per pixel, the index into ``label_names`` of the object seen,
+            -1 for the ground and the robot itself.
+        label_names: Object names for the label images.
+    """
+
+    stamp: float
+    goal_id: int
+    left: np.ndarray
+    right: np.ndarray
+    camera: CameraModel
+    left_pose: EyePose
+    right_pose: EyePose
+    exposures: int = 1
+    haptic: HapticReading | None = None
+    left_labels: np.ndarray | None = None
+    right_labels: np.ndarray | None = None
+    label_names: tuple[str, ...] = ()
+
+
+@dataclass
+class Roi:
+    """A region of interest of the perceptual buffer (section 2 of the paper).
+
+    Attributes:
+        roi_id: Id unique within one ROI array (not across frames: the spatial map
+            associates ROIs across frames by position).
+        bbox: (u0, v0, u1, v1) in the left retina, pixels, u1/v1 exclusive.
+        position: Estimated centre in the robot frame from stereo, metres.
+        features: FEATURE_DIM floats in [0, 1] (see FEATURE_NAMES).
+        known: FEATURE_DIM booleans; False where a feature is not measured yet
+            (the weight before a haptic improvement). Unknown features hold 0.
+        activation: Pre-attentive activation in [0, 1].
+        retinal_size: Share of the retina the ROI covers, [0, 1].
+        mean_intensity: Average retinal intensity in the ROI, [0, 1].
+        motion: Visual motion since the previous frame, [0, 1].
+        tactile: Tactile response (1 when a hand touches it), [0, 1].
+        mapped: Mapping status of the spatial-map entry at this position.
+    """
+
+    roi_id: int
+    bbox: tuple[int, int, int, int]
+    position: tuple[float, float, float]
+    features: np.ndarray
+    known: np.ndarray
+    activation: float = 0.0
+    retinal_size: float = 0.0
+    mean_intensity: float = 0.0
+    motion: float = 0.0
+    tactile: float = 0.0
+    mapped: bool = False
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """Answer of the associative memory to a match request.
+
+    Attributes:
+        outcome: IDENTIFIED, NEW or UNDETERMINED.
+        address: Long-term-memory address of the winner; -1 when none.
+        confidence: Winner-take-all confidence in [0, 1].
+    """
+
+    outcome: MatchOutcome
+    address: int = -1
+    confidence: float = 0.0
+
+
+class MemoryOp(IntEnum):
+    """What the attention node asks of the associative memory."""
+
+    MATCH = 0
+    STORE = 1
+
+
+@dataclass(frozen=True)
+class MemoryRequest:
+    """A match or a store (supervised learning of a new object).
+
+    Attributes:
+        request_id: Echoed in the reply.
+        op: MATCH or STORE.
+        features: FEATURE_DIM floats in [0, 1].
+        known: FEATURE_DIM booleans; unknown features are ignored, not taken as 0.
+        final_trial: For MATCH: all improvement trials are used up, so the memory must
+            decide between IDENTIFIED and NEW (never UNDETERMINED).
+    """
+
+    request_id: int
+    op: MemoryOp
+    features: np.ndarray
+    known: np.ndarray
+    final_trial: bool = False
+
+
+@dataclass
+class RunCounters:
+    """The counters of Table 2, kept so that its two identities hold by construction:
+
+    attention_shifts + improvements + map_updates == cycles, and
+    map_updates == positive_identifications + new_objects.
+    """
+
+    cycles: int = 0
+    attention_shifts: int = 0
+    visual_improvements: int = 0
+    haptic_improvements: int = 0
+    positive_identifications: int = 0
+    new_objects: int = 0
+    map_updates: int = 0
+
+    @property
+    def improvements(self) -> int:
+        """Eye and arm improvements together (Table 2's 'Eye/Arm Improv')."""
+        return self.visual_improvements + self.haptic_improvements
+
+    def as_dict(self) -> dict[str, int]:
+        """All counters, derived ones included, by name."""
+        return {
+            "cycles": self.cycles,
+            "attention_shifts": self.attention_shifts,
+            "improvements": self.improvements,
+            "visual_improvements": self.visual_improvements,
+            "haptic_improvements": self.haptic_improvements,
+            "positive_identifications": self.positive_identifications,
+            "new_objects": self.new_objects,
+            "map_updates": self.map_updates,
+        }
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object of a world file (see docs/world-files.md for the schema)."""
+
+    name: str
+    shape: str
+    position: tuple[float, float]
+    size: float
+    intensity: float
+    weight: float
+    yaw: float = 0.0
+    texture: str = "plain"
+
+    def category(self) -> tuple[str, float, float, float, str]:
+        """Objects with the same shape, size, intensity, weight and texture are one category."""
+        return (self.shape, round(self.size, 6), round(self.intensity, 6),
+                round(self.weight, 6), self.texture)
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """A whole world file."""
+
+    objects: tuple[ObjectSpec, ...]
+    name: str = "world"
+    light_direction: tuple[float, float, float] = (1.0, 0.5, 1.0)
+    source: str = "<memory>"
+
+
+def empty_features() -> tuple[np.ndarray, np.ndarray]:
+    """A zero feature vector with every feature unknown."""
+    return np.zeros(FEATURE_DIM, np.float32), np.zeros(FEATURE_DIM, bool)
+
+
+@dataclass
+class Rngs:
+    """Seeded generators handed to the core; no module-global randomness anywhere."""
+
+    seed: int
+    numpy: np.random.Generator = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.numpy = np.random.default_rng(self.seed)
+
+    def child(self, name: str) -> np.random.Generator:
+        """An independent generator for one component, stable for a given seed and name."""
+        salt = sum((i + 1) * ord(c) for i, c in enumerate(name))
+        return np.random.default_rng([self.seed, salt])

@@ -1,0 +1,1 @@
+"""Back-propagation associative memory with winner-take-all and a persistent long-term memory."""
