@@ -1,0 +1,285 @@
+"""ROS node of attentional control: drives one control cycle after another.
+
+Each cycle (one action): publish a goal and wait for the ROI array of the stereo pair
+rendered after it, then send the focused ROI's features to the memory and wait for the
+answer; a map update only talks to the memory (to store a new object) or to nobody. Every
+wait is a callback, never a blocking call. Run alone: ``roger-attention`` (or ``python -m
+roger_attention.attention_node``); it starts once the simulator, perception and memory
+nodes are matched on its topics.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor
+from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, \
+    guard_parameters, point_tuple, quaternion_to_rotation, time_to_seconds
+from roger_common.errors import MessageError, RogerError
+from roger_common.geometry import in_view
+from roger_common.types import Action, CameraModel, EyePose, Goal, MemoryRequest
+from sensor_msgs.msg import CameraInfo
+
+from roger_attention import conversions as conv
+from roger_attention.config import (
+    AttentionConfig,
+    QLearningConfig,
+    RewardConfig,
+    SpatialMapConfig,
+)
+from roger_attention.controller import AttentionController, CyclePlan
+from roger_attention.policies import make_policy
+from roger_interfaces.msg import (
+    ActionGoal,
+    MemoryResult,
+    Metrics,
+    PolicyState,
+    RoiArray,
+    SpatialMap,
+    StereoGeometry,
+)
+from roger_interfaces.msg import MemoryRequest as MemoryRequestMsg
+from roger_memory.conversions import msg_to_result, request_to_msg
+from roger_perception.conversions import msg_to_rois
+from roger_sim.conversions import goal_to_msg
+
+#: Goal id of the initial look at the workspace (not a control cycle).
+INITIAL_GOAL_ID = 0
+
+
+class AttentionNode(Node):
+    """Runs the AttentionController over the graph: goals, ROI arrays, memory requests."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("roger_attention", **kwargs)
+        p = self.declare_parameter
+        p("seed", 0, ParameterDescriptor(description="Seed of the policy's exploration"))
+        p("qtable_file", "", ParameterDescriptor(
+            description="Q-table file: loaded at start if it exists, saved atomically after "
+                        "every cycle while learning. Empty: kept in RAM only."))
+        p("learn", True, ParameterDescriptor(
+            description="Q-learning: update the table (training) or only run it"))
+        p("max_cycles", 0, ParameterDescriptor(
+            description="Stop after this many control cycles; 0 runs until shut down"))
+        p("home_target", [0.9, 0.0, 0.0], ParameterDescriptor(
+            description="Point (robot frame, m) fixated for the initial view"))
+        p("retry_after_s", 10.0, ParameterDescriptor(
+            description="Wall seconds without an answer before a goal or request is re-sent"))
+        nested = dict(
+            rewards=declare_config(self, RewardConfig, "rewards."),
+            qlearning=declare_config(self, QLearningConfig, "qlearning."),
+            spatial_map=declare_config(self, SpatialMapConfig, "spatial_map."))
+        self.config = declare_config(self, AttentionConfig, **nested)
+        for cls, prefix in ((AttentionConfig, ""), (RewardConfig, "rewards."),
+                            (QLearningConfig, "qlearning."), (SpatialMapConfig, "spatial_map.")):
+            guard_parameters(self, cls, prefix, lambda c=cls, x=prefix: self._config_of(x))
+        seed = int(self.get_parameter("seed").value)
+        qtable = str(self.get_parameter("qtable_file").value)
+        self.qtable_path = Path(qtable) if qtable else None
+        self.learn = bool(self.get_parameter("learn").value)
+        self.max_cycles = int(self.get_parameter("max_cycles").value)
+        rng = np.random.default_rng(seed)
+        self.policy = make_policy(self.config.policy, self.config, rng,
+                                  qtable_path=self.qtable_path, learn=self.learn)
+        self.ctl = AttentionController(self.config, self.policy, rng)
+
+        self.pub_goal = self.create_publisher(ActionGoal, "/roger/goal", RELIABLE)
+        self.pub_request = self.create_publisher(MemoryRequestMsg, "/roger/memory/request",
+                                                 RELIABLE)
+        self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", RELIABLE)
+        self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", RELIABLE)
+        self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
+        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
+        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
+        self.create_subscription(StereoGeometry, "/roger/stereo_geometry", self.on_geometry,
+                                 IMAGES)
+        self.create_subscription(CameraInfo, "/roger/left/camera_info", self.on_info, IMAGES)
+
+        self._geometry: dict[tuple[int, int], EyePose] = {}
+        self._camera: CameraModel | None = None
+        self._plan: CyclePlan | None = None
+        self._waiting_goal: int | None = None
+        self._waiting_request: int | None = None
+        self._last_sent: tuple[Any, float] | None = None
+        self._frame_stamp = 0.0
+        self._memory_size = 0
+        self._started = False
+        self._done = False
+        self._sim_now = 0.0
+        # Wall-clock timers: the simulated clock only advances when a goal is executed, so a
+        # sim-time timer would never fire while the graph waits for its first goal.
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timer = self.create_timer(0.05, self.tick, clock=self._wall)
+
+    def _config_of(self, prefix: str) -> Any:
+        return self.config if not prefix else getattr(self.config, prefix.rstrip("."))
+
+    # -- start-up ------------------------------------------------------------------------
+    def peers_ready(self) -> bool:
+        """True once simulator, perception and memory are matched on our topics."""
+        return (self.pub_goal.get_subscription_count() > 0
+                and self.pub_request.get_subscription_count() > 0
+                and self.count_publishers("/roger/rois") > 0
+                and self.count_publishers("/roger/memory/result") > 0)
+
+    def tick(self) -> None:
+        """Start when the peers are up; re-send a goal or request left unanswered."""
+        if not self._started:
+            if self.peers_ready():
+                self._started = True
+                self.get_logger().info(f"peers up; policy {self.config.policy}; first look")
+                self._relook = self.create_timer(0.0, self._look_again, clock=self._wall)
+            return
+        retry = float(self.get_parameter("retry_after_s").value)
+        if self._last_sent is not None and time.monotonic() - self._last_sent[1] > retry:
+            msg = self._last_sent[0]
+            self.get_logger().warn(f"no answer after {retry:.0f} s: re-sending {type(msg).__name__}")
+            self._publish(msg)
+
+    # -- the cycle -----------------------------------------------------------------------
+    def _publish(self, msg: Any) -> None:
+        self._last_sent = (msg, time.monotonic())
+        (self.pub_goal if isinstance(msg, ActionGoal) else self.pub_request).publish(msg)
+
+    def _send_goal(self, goal: Goal) -> None:
+        self._waiting_goal = goal.goal_id
+        self._publish(goal_to_msg(goal, self._sim_now))
+
+    def _send_request(self, req: MemoryRequest) -> None:
+        self._waiting_request = req.request_id
+        self._publish(request_to_msg(req, self._sim_now))
+
+    def next_cycle(self) -> None:
+        """Begin the next control cycle, unless the run is over."""
+        if self.max_cycles and self.ctl.counters.cycles >= self.max_cycles:
+            self._finish()
+            return
+        plan = self.ctl.begin_cycle(self._sim_now)
+        self._plan = plan
+        if plan.idle:
+            # Nothing in the map to attend to: look again in a moment (an empty world,
+            # or everything vanished), without counting a cycle.
+            self.ctl.end_cycle(None, self._sim_now)
+            self._plan = None
+            self._relook = self.create_timer(0.5, self._look_again, clock=self._wall)
+            return
+        if plan.goal is not None:
+            self._send_goal(plan.goal)
+        elif plan.memory_request is not None:
+            self._send_request(plan.memory_request)
+        else:
+            self._end_cycle(None)
+
+    def _look_again(self) -> None:
+        self.destroy_timer(self._relook)
+        home = tuple(float(v) for v in self.get_parameter("home_target").value)
+        self._send_goal(Goal(INITIAL_GOAL_ID, Action.ATTENTION_SHIFT, home))
+
+    def on_rois(self, msg: RoiArray) -> None:
+        """The stereo pair after our goal was perceived: observe, then match."""
+        if self._waiting_goal is None or int(msg.goal_id) != self._waiting_goal:
+            return
+        self._waiting_goal, self._last_sent = None, None
+        stamp = time_to_seconds(msg.header.stamp)
+        self._sim_now = max(self._sim_now, stamp)
+        self._frame_stamp = stamp
+        try:
+            rois = msg_to_rois(msg)
+        except MessageError as exc:
+            self.get_logger().error(f"ROI array of goal {msg.goal_id} unusable: {exc}")
+            rois = []
+        self.ctl.observe(rois, stamp, self._visible(msg.header.stamp))
+        self.pub_map.publish(conv.spatial_map_msg(self.ctl.spatial_map, stamp))
+        if int(msg.goal_id) == INITIAL_GOAL_ID:
+            self.next_cycle()
+            return
+        req = self.ctl.match_request()
+        if req is None:
+            self._end_cycle(None)
+        else:
+            self._send_request(req)
+
+    def on_result(self, msg: MemoryResult) -> None:
+        """The memory answered this cycle's match or store."""
+        if self._waiting_request is None or int(msg.request_id) != self._waiting_request:
+            return
+        self._waiting_request, self._last_sent = None, None
+        self._memory_size = int(msg.memory_size)
+        self._end_cycle(msg_to_result(msg))
+
+    def _end_cycle(self, result: Any) -> None:
+        plan = self._plan
+        assert plan is not None
+        record = self.ctl.end_cycle(result, self._sim_now)
+        self._plan = None
+        frame_stamp = self._frame_stamp if plan.goal is not None else 0.0
+        self.pub_state.publish(conv.record_to_msg(record, self.config.policy, self._sim_now,
+                                                  frame_stamp))
+        if self.learn and self.qtable_path is not None and self.policy.learns:
+            self.policy.save(self.qtable_path)
+        self.pub_map.publish(conv.spatial_map_msg(self.ctl.spatial_map, self._sim_now))
+        self._publish_metrics(done=False)
+        self.next_cycle()
+
+    def _finish(self) -> None:
+        if not self._done:
+            self._done = True
+            self.get_logger().info(f"done after {self.ctl.counters.cycles} cycles")
+        self._publish_metrics(done=True)
+
+    def _publish_metrics(self, done: bool) -> None:
+        self.pub_metrics.publish(conv.metrics_msg(
+            self.ctl.counters, self.config.policy, len(self.ctl.spatial_map),
+            self._memory_size, done, self._sim_now))
+
+    # -- what is in view -----------------------------------------------------------------
+    def on_geometry(self, msg: StereoGeometry) -> None:
+        """Keep the left eye's pose by stamp, to tell which map places are in view."""
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        self._geometry[key] = EyePose(
+            position=np.array(point_tuple(msg.left_eye.position)),
+            rotation=quaternion_to_rotation(msg.left_eye.orientation))
+        while len(self._geometry) > 16:
+            self._geometry.pop(next(iter(self._geometry)))
+
+    def on_info(self, msg: CameraInfo) -> None:
+        """Keep the retina's intrinsics."""
+        self._camera = CameraModel(int(msg.width), int(msg.height), float(msg.k[0]))
+
+    def _visible(self, stamp: Any) -> Any:
+        pose = self._geometry.get((stamp.sec, stamp.nanosec))
+        camera = self._camera
+        if pose is None or camera is None:
+            return None
+        margin = 0.1 * camera.width
+        return lambda p: in_view(camera, pose, p, margin)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``roger-attention``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = AttentionNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (RogerError, ValueError) as exc:
+        print(f"roger-attention: {exc}", file=sys.stderr)
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,194 @@
+"""Configuration of the attentional control core: frozen dataclasses checked on creation.
+
+Every value that the paper fixes is the default here (alpha 0.5, gamma 0.1 of section 2);
+every value it leaves open is documented in docs/attention.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from roger_common.errors import ConfigError
+
+#: Names accepted by ``AttentionConfig.policy`` and ``make_policy``.
+POLICY_NAMES: tuple[str, ...] = ("straightforward", "qlearning")
+
+
+def _check_finite(owner: str, name: str, value: float) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ConfigError(f"{owner}.{name} must be a finite number, got {value!r}")
+
+
+def _check_range(owner: str, name: str, value: float, low: float, high: float,
+                 low_open: bool = False) -> None:
+    _check_finite(owner, name, value)
+    too_low = value <= low if low_open else value < low
+    if too_low or value > high:
+        left = "(" if low_open else "["
+        raise ConfigError(f"{owner}.{name} must be in {left}{low}, {high}], got {value!r}")
+
+
+def _check_count(owner: str, name: str, value: int, low: int = 0) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < low:
+        raise ConfigError(f"{owner}.{name} must be an integer >= {low}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward magnitudes of the three circumstances of section 4.2.
+
+    Rewards are only given to the map updates 100->101 and 010->011. Circumstance (a),
+    an un-mapped position found, is part of both; (b) adds for a new object, (c) for a
+    positive identification. So r(100->101) = unmapped + new_object and
+    r(010->011) = unmapped + identification.
+
+    Attributes:
+        unmapped: Circumstance (a), an un-mapped position of the pre-attentional map.
+        new_object: Circumstance (b), an object without representation in memory.
+        identification: Circumstance (c), a positive identification.
+    """
+
+    unmapped: float = 1.0
+    new_object: float = 0.5
+    identification: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("unmapped", "new_object", "identification"):
+            _check_range("RewardConfig", name, getattr(self, name), 0.0, 1e6)
+
+
+@dataclass(frozen=True)
+class QLearningConfig:
+    """Tabular Q-learning of section 4.2.
+
+    Attributes:
+        alpha: Learning rate (the paper's 0.5).
+        gamma: Discount factor (the paper's 0.1).
+        epsilon: Exploration probability of the epsilon-greedy choice while learning.
+        initial_q: Value of every Q(s, a) of a fresh table.
+    """
+
+    alpha: float = 0.5
+    gamma: float = 0.1
+    epsilon: float = 0.1
+    initial_q: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_range("QLearningConfig", "alpha", self.alpha, 0.0, 1.0, low_open=True)
+        _check_range("QLearningConfig", "gamma", self.gamma, 0.0, 1.0)
+        _check_range("QLearningConfig", "epsilon", self.epsilon, 0.0, 1.0)
+        _check_range("QLearningConfig", "initial_q", self.initial_q, -1e6, 1e6)
+
+
+@dataclass(frozen=True)
+class SpatialMapConfig:
+    """The pre-attentional (spatial) map of section 5.
+
+    Attributes:
+        association_radius: A ROI within this distance (m) of an entry is that entry.
+        moved_threshold: An entry whose position drifted this far (m) from where it was
+            mapped has moved: its mapping status is cleared so that it is mapped again.
+        vanish_frames: An entry whose position is in view but that no ROI matched in this
+            many consecutive frames has vanished and is removed.
+        interest_rate: Growth of interest per second of simulated time (1/s).
+    """
+
+    association_radius: float = 0.15
+    moved_threshold: float = 0.06
+    vanish_frames: int = 3
+    interest_rate: float = 0.1
+
+    def __post_init__(self) -> None:
+        _check_range("SpatialMapConfig", "association_radius", self.association_radius,
+                     0.0, 100.0, low_open=True)
+        _check_range("SpatialMapConfig", "moved_threshold", self.moved_threshold,
+                     0.0, 100.0, low_open=True)
+        if self.moved_threshold > self.association_radius:
+            raise ConfigError(
+                "SpatialMapConfig.moved_threshold must not exceed association_radius "
+                f"({self.association_radius!r}), got {self.moved_threshold!r}")
+        _check_count("SpatialMapConfig", "vanish_frames", self.vanish_frames, low=1)
+        _check_range("SpatialMapConfig", "interest_rate", self.interest_rate,
+                     0.0, 1e6, low_open=True)
+
+
+@dataclass(frozen=True)
+class AttentionConfig:
+    """Everything the AttentionController needs; the policy is one switch (issue item 7).
+
+    Attributes:
+        policy: "straightforward" (section 4.1) or "qlearning" (section 4.2).
+        visual_trials: Visual improvements allowed per focus before the match is final.
+        haptic_trials: Haptic improvements allowed per focus before the match is final.
+        rewards: Reward magnitudes (section 4.2, circumstances a-c).
+        qlearning: Q-learning parameters.
+        spatial_map: Spatial-map parameters.
+    """
+
+    policy: str = "straightforward"
+    visual_trials: int = 1
+    haptic_trials: int = 1
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+    qlearning: QLearningConfig = field(default_factory=QLearningConfig)
+    spatial_map: SpatialMapConfig = field(default_factory=SpatialMapConfig)
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICY_NAMES:
+            raise ConfigError(
+                f"AttentionConfig.policy must be one of {POLICY_NAMES}, got {self.policy!r}")
+        _check_count("AttentionConfig", "visual_trials", self.visual_trials)
+        _check_count("AttentionConfig", "haptic_trials", self.haptic_trials)
+        for name, kind in (("rewards", RewardConfig), ("qlearning", QLearningConfig),
+                           ("spatial_map", SpatialMapConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ConfigError(
+                    f"AttentionConfig.{name} must be a {kind.__name__}, "
+                    f"got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class FsmEnvConfig:
+    """The abstract FSM-only environment used to train and test the Q-learning policy.
+
+    Each ROI that attention lands on is drawn at random: already mapped with probability
+    ``p_mapped`` (a mapped object is always in memory), otherwise known to memory with
+    probability ``p_known``. A non-final match identifies a known object with the
+    probability of the action that preceded it; an unknown object stays undetermined until
+    the final trial, which answers IDENTIFIED for a known object and NEW otherwise.
+
+    Attributes:
+        p_mapped: Probability that a shift lands on an already mapped ROI.
+        p_known: Probability that an un-mapped ROI's object is already in memory.
+        p_identify_shift: Identification probability of the match after a shift.
+        p_identify_visual: ... after a visual improvement.
+        p_identify_haptic: ... after a haptic improvement (the paper notes it is the more
+            effective one).
+        visual_trials: As in AttentionConfig.
+        haptic_trials: As in AttentionConfig.
+        max_episode_steps: An episode not ended by a map update is truncated here.
+        rewards: As in AttentionConfig.
+    """
+
+    p_mapped: float = 0.25
+    p_known: float = 0.5
+    p_identify_shift: float = 0.3
+    p_identify_visual: float = 0.5
+    p_identify_haptic: float = 0.7
+    visual_trials: int = 1
+    haptic_trials: int = 1
+    max_episode_steps: int = 50
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("p_mapped", "p_known", "p_identify_shift", "p_identify_visual",
+                     "p_identify_haptic"):
+            _check_range("FsmEnvConfig", name, getattr(self, name), 0.0, 1.0)
+        if self.p_mapped >= 1.0:
+            raise ConfigError(f"FsmEnvConfig.p_mapped must be < 1, got {self.p_mapped!r}")
+        _check_count("FsmEnvConfig", "visual_trials", self.visual_trials)
+        _check_count("FsmEnvConfig", "haptic_trials", self.haptic_trials)
+        _check_count("FsmEnvConfig", "max_episode_steps", self.max_episode_steps, low=1)
+        if not isinstance(self.rewards, RewardConfig):
+            raise ConfigError(f"FsmEnvConfig.rewards must be a RewardConfig, "
+                              f"got {self.rewards!r}")

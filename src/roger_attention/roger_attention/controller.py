@@ -1,0 +1,360 @@
+"""The attention cycle engine: one control cycle = one action (sections 4.1, 4.2 and 5).
+
+The driver (the ROS attention node, or an in-process loop) runs each cycle as::
+
+    ctl.observe(rois, now, visible)            # every frame, the initial one included
+    plan = ctl.begin_cycle(now)                # the policy picks the action
+    if plan.goal:                              # physical action
+        execute, render, perceive; ctl.observe(rois, now, visible)
+        req = ctl.match_request()              # None when the focus is lost from view
+        result = memory(req) if req else None
+    elif plan.memory_request:                  # map update of a new object: store it
+        result = memory(plan.memory_request)
+    record = ctl.end_cycle(result, now)
+
+Nothing here blocks or does I/O; the controller only keeps the state between the calls.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from roger_common.types import (
+    Action,
+    Goal,
+    MatchOutcome,
+    MatchResult,
+    MemoryOp,
+    MemoryRequest,
+    Roi,
+    RunCounters,
+)
+
+from roger_attention.config import AttentionConfig
+from roger_attention.fsm import (
+    INITIAL_STATE,
+    State,
+    allowed_actions,
+    check_allowed,
+    is_terminal,
+    reward,
+    transition,
+)
+from roger_attention.policies import Policy
+from roger_attention.spatial_map import MapChanges, Position, SpatialMap, VisibleFn
+
+#: Outcome strings of a CycleRecord.
+OUTCOMES: tuple[str, ...] = (
+    "identified", "new", "undetermined", "stored", "mapped", "lost", "none")
+
+
+@dataclass(frozen=True)
+class CyclePlan:
+    """What the driver must do in this cycle.
+
+    Attributes:
+        cycle: Number of the cycle (1 for the first); an idle plan carries the number
+            the next real cycle will have.
+        action: The action the policy chose.
+        goal: The physical action to execute (None for a map update or an idle cycle).
+            Its target is the focused entry's position; for a shift, the new focus.
+        memory_request: The STORE of a new object's map update, else None.
+        entry_id: Entry in focus for this cycle; -1 when none.
+        state: The "nim" bits the action was chosen in.
+        idle: True when there is nothing to attend to (empty map): the cycle is not
+            counted and the driver just calls end_cycle.
+    """
+
+    cycle: int
+    action: Action
+    goal: Goal | None
+    memory_request: MemoryRequest | None
+    entry_id: int
+    state: str
+    idle: bool = False
+
+
+@dataclass(frozen=True)
+class CycleRecord:
+    """What one cycle did, for logs, plots and Table 2.
+
+    Attributes:
+        cycle: Cycle number.
+        state_before: "nim" bits before the action.
+        action: The action.
+        state_after: "nim" bits after it.
+        reward: Reward of the transition.
+        td_error: TD error of the Q update; None when nothing was learnt.
+        entry_id: Entry in focus; -1 when none.
+        position: Its position, robot frame (None when none).
+        bbox: Its freshest ROI's bounding box in the left retina (None when none).
+        outcome: One of OUTCOMES.
+        address: Long-term-memory address concerned; -1 when none.
+        counters: Copy of the run counters after the cycle.
+    """
+
+    cycle: int
+    state_before: str
+    action: Action
+    state_after: str
+    reward: float
+    td_error: float | None
+    entry_id: int
+    position: Position | None
+    bbox: tuple[int, int, int, int] | None
+    outcome: str
+    address: int
+    counters: RunCounters
+
+
+@dataclass
+class _Pending:
+    plan: CyclePlan
+    state: State
+    frame: int
+    final_trial: bool
+
+
+class AttentionController:
+    """Spatial map, attention window, attention shift, FSM, policy and counters.
+
+    Attributes:
+        config: The configuration.
+        policy: The straightforward or the Q-learning policy.
+        rng: Randomness of the controller (reserved; the policies hold their own).
+        spatial_map: The pre-attentional map.
+        counters: Table 2's counters; both identities hold by construction.
+        td_errors: TD error of every Q update of this run.
+        focus: Entry in the attention window, None before the first shift.
+    """
+
+    def __init__(self, config: AttentionConfig, policy: Policy,
+                 rng: np.random.Generator) -> None:
+        """Start with an empty map, nothing in focus and state 000."""
+        self.config = config
+        self.policy = policy
+        self.rng = rng
+        self.spatial_map = SpatialMap(config.spatial_map)
+        self.counters = RunCounters()
+        self.td_errors: list[float] = []
+        self.focus: int | None = None
+        self._state = INITIAL_STATE
+        self._visual_left = 0
+        self._haptic_left = 0
+        self._focus_address = -1
+        self._pending: _Pending | None = None
+        self._next_goal_id = 1
+        self._next_request_id = 1
+
+    @property
+    def state(self) -> State:
+        """Current FSM state (``.bits`` gives the "nim" string)."""
+        return self._state
+
+    @property
+    def in_cycle(self) -> bool:
+        """True between begin_cycle and end_cycle."""
+        return self._pending is not None
+
+    def mapped_positions(self) -> list[Position]:
+        """Positions of every mapped entry (perception lowers their activation)."""
+        return self.spatial_map.mapped_positions()
+
+    def allowed(self) -> tuple[Action, ...]:
+        """Actions the FSM allows now."""
+        return allowed_actions(self._state, self._visual_left, self._haptic_left,
+                               has_focus=self.focus is not None)
+
+    def observe(self, rois: Sequence[Roi], now: float,
+                visible: VisibleFn | None = None) -> MapChanges:
+        """Merge one frame's ROIs into the spatial map (see SpatialMap.update)."""
+        changes = self.spatial_map.update(rois, now, visible)
+        if self.focus is not None and self.focus not in self.spatial_map:
+            self.focus = None
+        return changes
+
+    def begin_cycle(self, now: float) -> CyclePlan:
+        """Let the policy choose this cycle's action and say what to execute.
+
+        Raises:
+            RuntimeError: A cycle is already open.
+            IllegalActionError: The policy chose an action the FSM does not allow.
+        """
+        if self._pending is not None:
+            raise RuntimeError("begin_cycle called again before end_cycle")
+        self.spatial_map.advance(now)
+        self._refresh_state()
+        state = self._state
+        allowed = self.allowed()
+        action = Action(self.policy.select_action(state, allowed))
+        check_allowed(action, allowed, state)
+        cycle = self.counters.cycles + 1
+        goal: Goal | None = None
+        store: MemoryRequest | None = None
+        if action is Action.ATTENTION_SHIFT:
+            target = self.spatial_map.select_focus(exclude=self.focus)
+            if target is None:
+                plan = CyclePlan(cycle, action, None, None, -1, state.bits, idle=True)
+                self._pending = _Pending(plan, state, self.spatial_map.frame, False)
+                return plan
+            self.focus = target
+            self.spatial_map.focus(target, now)
+            self._visual_left = self.config.visual_trials
+            self._haptic_left = self.config.haptic_trials
+            self._focus_address = -1
+        elif action is Action.VISUAL_IMPROVEMENT:
+            self._visual_left -= 1
+        elif action is Action.HAPTIC_IMPROVEMENT:
+            self._haptic_left -= 1
+        entry = self.spatial_map.get(self.focus)
+        assert entry is not None  # allowed_actions gives only a shift without a focus
+        if action is Action.MAP_UPDATE:
+            if state.novelty:
+                store = MemoryRequest(self._take_request_id(), MemoryOp.STORE,
+                                      entry.features.copy(), entry.known.copy())
+        else:
+            goal = Goal(self._next_goal_id, action, entry.position)
+            self._next_goal_id += 1
+        final = self._visual_left <= 0 and self._haptic_left <= 0
+        plan = CyclePlan(cycle, action, goal, store, entry.entry_id, state.bits)
+        self._pending = _Pending(plan, state, self.spatial_map.frame, final)
+        return plan
+
+    def match_request(self) -> MemoryRequest | None:
+        """MATCH of the focused entry's features after this cycle's physical action.
+
+        Returns:
+            The request (``final_trial`` set when no improvement trial is left), or None
+            outside a physical action's cycle or when no ROI of the focused entry was
+            observed since begin_cycle (the object is lost from view).
+        """
+        pending = self._pending
+        if pending is None or pending.plan.goal is None:
+            return None
+        entry = self.spatial_map.get(pending.plan.entry_id)
+        if entry is None or entry.last_frame <= pending.frame:
+            return None
+        return MemoryRequest(self._take_request_id(), MemoryOp.MATCH, entry.features.copy(),
+                             entry.known.copy(), final_trial=pending.final_trial)
+
+    def end_cycle(self, result: MatchResult | None, now: float) -> CycleRecord:
+        """Close the cycle: FSM transition, reward, Q update, counters, interest.
+
+        Args:
+            result: The memory's answer to this cycle's match (physical action) or store
+                (map update of a new object); None when there was none or the focus was
+                lost.
+            now: Simulated time at the end of the cycle.
+
+        Raises:
+            RuntimeError: No cycle is open.
+        """
+        pending = self._pending
+        if pending is None:
+            raise RuntimeError("end_cycle called without begin_cycle")
+        self._pending = None
+        self.spatial_map.advance(now)
+        plan, state = pending.plan, pending.state
+        if plan.idle:
+            return self._record(plan, state, state, 0.0, None, "none", -1)
+        entry = self.spatial_map.get(plan.entry_id)
+        if plan.action is Action.MAP_UPDATE:
+            outcome, address = self._map_update(state, result)
+            next_state = transition(state, plan.action, None, True)
+        else:
+            matched = self._matched_outcome(pending, result)
+            outcome = "lost" if matched is None else matched.name.lower()
+            address = result.address if matched is MatchOutcome.IDENTIFIED and result else -1
+            if matched is MatchOutcome.IDENTIFIED:
+                self._focus_address = address
+            if entry is not None and entry.mapped and self._contradicts(entry.address, matched,
+                                                                        address):
+                self.spatial_map.clear_mapping(entry.entry_id)
+            mapped = entry is not None and entry.mapped
+            next_state = transition(state, plan.action, matched, mapped)
+        self._count(plan.action, state)
+        r = reward(state, plan.action, next_state, self.config.rewards)
+        self._state = next_state
+        if self.focus is not None and self.focus not in self.spatial_map:
+            self.focus = None
+        td = self.policy.update(state, plan.action, r, next_state, is_terminal(plan.action),
+                                self.allowed())
+        if td is not None:
+            self.td_errors.append(td)
+        if self.focus is not None:
+            self.spatial_map.keep_focus(self.focus, now)
+        return self._record(plan, state, next_state, r, td, outcome, address)
+
+    def _matched_outcome(self, pending: _Pending,
+                         result: MatchResult | None) -> MatchOutcome | None:
+        entry = self.spatial_map.get(pending.plan.entry_id)
+        if result is None or entry is None or entry.last_frame <= pending.frame:
+            return None
+        outcome = MatchOutcome(result.outcome)
+        if outcome is MatchOutcome.NEW and not pending.final_trial:
+            # Novelty is set only when no match occurred after all trials (section 4.2).
+            return MatchOutcome.UNDETERMINED
+        return outcome
+
+    @staticmethod
+    def _contradicts(mapped_address: int, outcome: MatchOutcome | None, address: int) -> bool:
+        # A mapped entry that memory now calls new, or identifies as another object, holds a
+        # different object than the one mapped: the map must follow.
+        if outcome is MatchOutcome.NEW:
+            return True
+        return (outcome is MatchOutcome.IDENTIFIED and mapped_address >= 0 and address >= 0
+                and address != mapped_address)
+
+    def _map_update(self, state: State, result: MatchResult | None) -> tuple[str, int]:
+        if state.novelty:
+            address = result.address if result is not None and result.address >= 0 else -1
+            outcome = "stored"
+        else:
+            address = self._focus_address
+            outcome = "mapped"
+        if self.focus is not None and self.focus in self.spatial_map:
+            self.spatial_map.set_mapped(self.focus, address)
+        return outcome, address
+
+    def _count(self, action: Action, state: State) -> None:
+        c = self.counters
+        c.cycles += 1
+        if action is Action.ATTENTION_SHIFT:
+            c.attention_shifts += 1
+        elif action is Action.VISUAL_IMPROVEMENT:
+            c.visual_improvements += 1
+        elif action is Action.HAPTIC_IMPROVEMENT:
+            c.haptic_improvements += 1
+        else:
+            # Allowed only with novelty or identity 1, so Table 2's second identity holds.
+            c.map_updates += 1
+            if state.novelty:
+                c.new_objects += 1
+            else:
+                c.positive_identifications += 1
+
+    def _refresh_state(self) -> None:
+        entry = self.spatial_map.get(self.focus)
+        if entry is None:
+            self._state = INITIAL_STATE
+        elif self._state.mapping != int(entry.mapped):
+            self._state = State(self._state.novelty, self._state.identity, int(entry.mapped))
+
+    def _take_request_id(self) -> int:
+        rid = self._next_request_id
+        self._next_request_id += 1
+        return rid
+
+    def _record(self, plan: CyclePlan, before: State, after: State, r: float,
+                td: float | None, outcome: str, address: int) -> CycleRecord:
+        entry = self.spatial_map.get(plan.entry_id)
+        return CycleRecord(
+            cycle=plan.cycle,
+            state_before=before.bits, action=plan.action, state_after=after.bits, reward=r,
+            td_error=td, entry_id=plan.entry_id,
+            position=entry.position if entry is not None else None,
+            bbox=tuple(entry.roi.bbox) if entry is not None else None,
+            outcome=outcome, address=address, counters=dataclasses.replace(self.counters))

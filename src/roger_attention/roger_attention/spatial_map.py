@@ -1,0 +1,260 @@
+"""The pre-attentional (spatial) map: every ROI settled at its position in the robot frame.
+
+Each entry keeps the mapping status set by a map update, the long-term-memory address once
+known, the pre-attentive activation of its freshest ROI and its interest (section 5): zero
+when the entry is first settled, growing with simulated time, reset when attention focuses
+on it. ROIs are associated with entries by position; moved, vanished and new objects are
+noticed and the map follows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from roger_common.types import Roi
+
+from roger_attention.config import SpatialMapConfig
+
+Position = tuple[float, float, float]
+#: Says whether a robot-frame position is currently inside the retina.
+VisibleFn = Callable[[Position], bool]
+
+
+@dataclass
+class MapEntry:
+    """One settled ROI.
+
+    Attributes:
+        entry_id: Unique for the lifetime of the map (never reused).
+        position: Latest position of the associated ROI, robot frame, metres.
+        roi: Freshest ROI associated with the entry (``mapped`` mirrors the entry).
+        features: Features of the focus so far: those of the freshest ROI, plus features it
+            does not know but an earlier ROI of the same focus measured (the weight of a
+            haptic improvement before a visual one).
+        known: Which of ``features`` are measured.
+        mapped: Mapping status, set by a map update.
+        address: Long-term-memory address once the object is identified or stored; -1 before.
+        interest: Grows with simulated time, zero when settled or focused (section 5).
+        activation: Pre-attentive activation of the freshest ROI, [0, 1].
+        first_seen: Simulated time the entry was settled.
+        last_seen: Simulated time of the last associated ROI.
+        last_frame: Number of the last observation (``SpatialMap.frame``) that saw it.
+        mapped_position: Where the entry was when it was mapped (None while unmapped).
+        misses: Consecutive observations in which its position was in view but no ROI
+            matched it.
+    """
+
+    entry_id: int
+    position: Position
+    roi: Roi
+    features: np.ndarray
+    known: np.ndarray
+    first_seen: float
+    last_seen: float
+    last_frame: int
+    mapped: bool = False
+    address: int = -1
+    interest: float = 0.0
+    activation: float = 0.0
+    mapped_position: Position | None = None
+    misses: int = 0
+
+
+@dataclass(frozen=True)
+class MapChanges:
+    """What one observation changed, by entry id."""
+
+    new: tuple[int, ...] = ()
+    associated: tuple[int, ...] = ()
+    moved: tuple[int, ...] = ()
+    vanished: tuple[int, ...] = ()
+
+
+def _distance(a: Sequence[float], b: Sequence[float]) -> float:
+    return math.dist(a, b)
+
+
+@dataclass
+class SpatialMap:
+    """Entries by id, their association with incoming ROIs, interest and winner-take-all.
+
+    Attributes:
+        config: Radii, vanish count and interest rate.
+        entries: Entries by id, in settling order.
+        frame: Number of observations merged so far.
+        time: Simulated time the interests are brought up to.
+    """
+
+    config: SpatialMapConfig = field(default_factory=SpatialMapConfig)
+    entries: dict[int, MapEntry] = field(default_factory=dict)
+    frame: int = 0
+    time: float | None = None
+    _next_id: int = field(default=1, init=False, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def __iter__(self) -> Iterator[MapEntry]:
+        return iter(list(self.entries.values()))
+
+    def __contains__(self, entry_id: object) -> bool:
+        return entry_id in self.entries
+
+    def get(self, entry_id: int | None) -> MapEntry | None:
+        """The entry with this id, or None (also for None or a vanished id)."""
+        return None if entry_id is None else self.entries.get(entry_id)
+
+    def advance(self, now: float) -> None:
+        """Let every interest grow up to simulated time ``now`` (never backwards)."""
+        if self.time is not None and now > self.time:
+            grow = self.config.interest_rate * (now - self.time)
+            for entry in self.entries.values():
+                entry.interest += grow
+        if self.time is None or now > self.time:
+            self.time = now
+
+    def update(self, rois: Sequence[Roi], now: float,
+               visible: VisibleFn | None = None) -> MapChanges:
+        """Merge one ROI array into the map.
+
+        ROIs and entries are paired greedily by increasing distance, each at most once,
+        within ``association_radius``. An unpaired ROI settles a new entry (interest 0).
+        A paired mapped entry that drifted more than ``moved_threshold`` from where it was
+        mapped has moved: its mapping status is cleared. An unpaired entry whose position
+        ``visible`` reports in view for ``vanish_frames`` observations in a row has
+        vanished and is removed. Without ``visible`` nothing is ever removed, because the
+        map cannot tell an object gone from one out of view.
+
+        Args:
+            rois: The ROIs of one frame, positions in the robot frame.
+            now: Simulated time of the frame.
+            visible: Whether a map position is currently inside the retina.
+
+        Returns:
+            The ids of new, associated, moved and vanished entries.
+        """
+        self.advance(now)
+        self.frame += 1
+        radius = self.config.association_radius
+        pairs = sorted(
+            (_distance(roi.position, e.position), k, e.entry_id)
+            for k, roi in enumerate(rois) for e in self.entries.values()
+            if _distance(roi.position, e.position) <= radius
+        )
+        roi_used: set[int] = set()
+        entry_used: set[int] = set()
+        moved: list[int] = []
+        for _, k, entry_id in pairs:
+            if k in roi_used or entry_id in entry_used:
+                continue
+            roi_used.add(k)
+            entry_used.add(entry_id)
+            if self._associate(self.entries[entry_id], rois[k], now):
+                moved.append(entry_id)
+        new = [self._settle(roi, now) for k, roi in enumerate(rois) if k not in roi_used]
+        vanished: list[int] = []
+        if visible is not None:
+            for entry in list(self.entries.values()):
+                if entry.entry_id in entry_used or entry.entry_id in new:
+                    continue
+                if visible(entry.position):
+                    entry.misses += 1
+                    if entry.misses >= self.config.vanish_frames:
+                        del self.entries[entry.entry_id]
+                        vanished.append(entry.entry_id)
+        return MapChanges(tuple(new), tuple(sorted(entry_used)), tuple(moved), tuple(vanished))
+
+    def _settle(self, roi: Roi, now: float) -> int:
+        entry_id = self._next_id
+        self._next_id += 1
+        self.entries[entry_id] = MapEntry(
+            entry_id=entry_id, position=tuple(float(x) for x in roi.position),
+            roi=dataclasses.replace(roi, mapped=False),
+            features=np.asarray(roi.features, np.float32).copy(),
+            known=np.asarray(roi.known, bool).copy(),
+            first_seen=now, last_seen=now, last_frame=self.frame,
+            activation=float(roi.activation))
+        return entry_id
+
+    def _associate(self, entry: MapEntry, roi: Roi, now: float) -> bool:
+        entry.position = tuple(float(x) for x in roi.position)
+        entry.activation = float(roi.activation)
+        entry.last_seen = now
+        entry.last_frame = self.frame
+        entry.misses = 0
+        known = np.asarray(roi.known, bool)
+        entry.features[known] = np.asarray(roi.features, np.float32)[known]
+        entry.known |= known
+        moved = (entry.mapped and entry.mapped_position is not None and
+                 _distance(entry.position, entry.mapped_position) > self.config.moved_threshold)
+        if moved:
+            self.clear_mapping(entry.entry_id)
+        entry.roi = dataclasses.replace(roi, mapped=entry.mapped)
+        return moved
+
+    def focus(self, entry_id: int, now: float) -> None:
+        """Attention focuses on the entry: its interest resets and its feature
+        accumulation restarts from its freshest ROI."""
+        self.advance(now)
+        entry = self.entries[entry_id]
+        entry.interest = 0.0
+        entry.features = np.asarray(entry.roi.features, np.float32).copy()
+        entry.known = np.asarray(entry.roi.known, bool).copy()
+
+    def keep_focus(self, entry_id: int, now: float) -> None:
+        """Attention stays on the entry: its interest stays zero."""
+        self.advance(now)
+        entry = self.entries.get(entry_id)
+        if entry is not None:
+            entry.interest = 0.0
+
+    def set_mapped(self, entry_id: int, address: int) -> None:
+        """A map update: mapping status 1, the address when known, the mapped position."""
+        entry = self.entries[entry_id]
+        entry.mapped = True
+        if address >= 0:
+            entry.address = address
+        entry.mapped_position = entry.position
+        entry.roi = dataclasses.replace(entry.roi, mapped=True)
+
+    def clear_mapping(self, entry_id: int) -> None:
+        """The map's record of this entry is stale (moved, or a different object now)."""
+        entry = self.entries[entry_id]
+        entry.mapped = False
+        entry.mapped_position = None
+        entry.roi = dataclasses.replace(entry.roi, mapped=False)
+
+    def all_mapped(self) -> bool:
+        """True when every entry has mapping status 1 (also for an empty map)."""
+        return all(e.mapped for e in self.entries.values())
+
+    def mapped_positions(self) -> list[Position]:
+        """Positions of the mapped entries, in settling order."""
+        return [e.position for e in self.entries.values() if e.mapped]
+
+    def select_focus(self, exclude: int | None = None) -> int | None:
+        """The attention shift's winner-take-all (section 2 and section 5).
+
+        While some entry is unmapped, the unmapped entry of largest pre-attentive
+        activation wins; once everything is mapped, the entry of largest interest, which
+        keeps the robot vigilant. The current focus ``exclude`` only wins when it is the
+        only entry. Ties go to the oldest entry.
+
+        Returns:
+            The winning entry id, or None for an empty map.
+        """
+        candidates = [e for e in self.entries.values() if e.entry_id != exclude]
+        if not candidates:
+            candidates = list(self.entries.values())
+        if not candidates:
+            return None
+        unmapped = [e for e in candidates if not e.mapped]
+        if unmapped:
+            best = max(unmapped, key=lambda e: (e.activation, -e.entry_id))
+        else:
+            best = max(candidates, key=lambda e: (e.interest, -e.entry_id))
+        return best.entry_id

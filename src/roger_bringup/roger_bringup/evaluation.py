@@ -1,0 +1,213 @@
+"""Ground-truth scoring of a run and the files it writes (cycles.csv, metrics.json).
+
+Evaluation only: it reads the simulator's ground truth, which the policy and the memory
+never see. Pure Python: the ROS monitor and the in-process loop both feed it.
+
+Scoring rules (issue 7):
+- objects with identical shape, size, intensity, weight and texture are one category;
+- identification_precision: share of positive identifications whose memory address was
+  first stored from an object of the same category as the one in view;
+- novelty_precision: share of new-object detections made while no object of that category
+  was yet in memory;
+- objects_visited: world objects that were under the attention window at least once.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from roger_common.atomic import atomic_write_bytes
+from roger_common.types import Action, ObjectSpec
+
+#: cycles.csv columns; the first eight are a contract (issue 7), later ones are extensions.
+CSV_COLUMNS: tuple[str, ...] = (
+    "cycle", "state", "action", "reward", "td_error", "roi", "true_object", "outcome",
+    "state_after", "address", "x", "y", "z", "sim_time",
+)
+ACTION_NAMES: dict[int, str] = {
+    Action.ATTENTION_SHIFT: "attention_shift",
+    Action.VISUAL_IMPROVEMENT: "visual_improvement",
+    Action.HAPTIC_IMPROVEMENT: "haptic_improvement",
+    Action.MAP_UPDATE: "map_update",
+}
+
+
+@dataclass(frozen=True)
+class CycleRow:
+    """One control cycle as the evaluation sees it."""
+
+    cycle: int
+    state: str
+    action: int
+    reward: float
+    td_error: float | None
+    roi: int
+    true_object: str | None
+    outcome: str
+    state_after: str = ""
+    address: int = -1
+    position: tuple[float, float, float] | None = None
+    sim_time: float = 0.0
+
+    def as_csv(self) -> list[str]:
+        """The row's cells in CSV_COLUMNS order (empty cells for unknowns)."""
+        pos = self.position or (math.nan, math.nan, math.nan)
+        td = "" if self.td_error is None or not math.isfinite(self.td_error) else \
+            f"{self.td_error:.6g}"
+        return [str(self.cycle), self.state, ACTION_NAMES.get(self.action, str(self.action)),
+                f"{self.reward:.6g}", td, str(self.roi), self.true_object or "", self.outcome,
+                self.state_after, str(self.address),
+                *("" if math.isnan(v) else f"{v:.4f}" for v in pos), f"{self.sim_time:.4f}"]
+
+
+def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
+                        bbox: tuple[int, int, int, int]) -> str | None:
+    """The world object most of the attention window's pixels show; None for the ground.
+
+    Args:
+        labels: Per-pixel object index of the left retina, -1 for ground and robot.
+        names: Object names by index.
+        bbox: (x0, y0, x1, y1) of the attended ROI, exclusive ends.
+    """
+    x0, y0, x1, y1 = bbox
+    window = labels[max(0, y0):max(0, y1), max(0, x0):max(0, x1)]
+    window = window[window >= 0]
+    if window.size == 0:
+        return None
+    idx = int(np.bincount(window).argmax())
+    return names[idx] if idx < len(names) else None
+
+
+@dataclass
+class RunScorer:
+    """Accumulates the ground-truth scores of a run, cycle by cycle."""
+
+    objects: dict[str, ObjectSpec]
+    visited: set[str] = field(default_factory=set)
+    address_category: dict[int, Any] = field(default_factory=dict)
+    identifications: int = 0
+    correct_identifications: int = 0
+    detections: int = 0
+    correct_detections: int = 0
+    last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
+    cycles_since_new: int = 0
+
+    def set_objects(self, objects: list[ObjectSpec]) -> None:
+        """The world changed: keep scoring with its current objects (old ones stay known)."""
+        for o in objects:
+            self.objects[o.name] = o
+
+    def category(self, name: str | None) -> Any:
+        """Category of a world object by name; None for no object."""
+        if name is None or name not in self.objects:
+            return None
+        return self.objects[name].category()
+
+    def true_object_for(self, action: int, roi: int, seen: str | None) -> str | None:
+        """The object under the window: seen now, or (map update) last seen for that ROI."""
+        if action == Action.MAP_UPDATE:
+            return self.last_true_of_roi.get(roi)
+        self.last_true_of_roi[roi] = seen
+        return seen
+
+    def add(self, row: CycleRow) -> None:
+        """Score one cycle."""
+        self.cycles_since_new += 1
+        if row.true_object is not None:
+            self.visited.add(row.true_object)
+        if row.action != Action.MAP_UPDATE:
+            return
+        cat = self.category(row.true_object)
+        if row.outcome == "stored":
+            self.detections += 1
+            if cat is not None and cat not in self.address_category.values():
+                self.correct_detections += 1
+            if row.address >= 0:
+                self.address_category.setdefault(row.address, cat)
+            self.cycles_since_new = 0
+        elif row.outcome == "mapped":
+            self.identifications += 1
+            stored = self.address_category.get(row.address, None)
+            if cat is not None and stored == cat:
+                self.correct_identifications += 1
+
+    def results(self) -> dict[str, Any]:
+        """The ground-truth part of metrics.json."""
+        def share(num: int, den: int) -> float | None:
+            return None if den == 0 else num / den
+        return {
+            "objects_in_world": len(self.objects),
+            "objects_visited": len(self.visited & set(self.objects)),
+            "identification_precision": share(self.correct_identifications,
+                                              self.identifications),
+            "novelty_precision": share(self.correct_detections, self.detections),
+        }
+
+
+class RunRecorder:
+    """Writes cycles.csv as the run goes (flushed per row: a crash loses nothing) and
+    metrics.json at the end (atomically)."""
+
+    def __init__(self, out_dir: Path, objects: list[ObjectSpec], meta: dict[str, Any]) -> None:
+        self.out_dir = out_dir
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.meta = dict(meta)
+        self.scorer = RunScorer({o.name: o for o in objects})
+        self.rows: list[CycleRow] = []
+        self.counters: dict[str, int] = {}
+        self._fh: IO[str] = open(out_dir / "cycles.csv", "w", newline="")
+        self._csv = csv.writer(self._fh)
+        self._csv.writerow(CSV_COLUMNS)
+        self._fh.flush()
+
+    def add(self, row: CycleRow) -> None:
+        """Record and score one cycle."""
+        self.rows.append(row)
+        self.scorer.add(row)
+        self._csv.writerow(row.as_csv())
+        self._fh.flush()
+
+    def metrics(self, wall_seconds: float) -> dict[str, Any]:
+        """metrics.json's content: the meta, the counters, the scores and the wall time."""
+        c = dict(self.counters)
+        out: dict[str, Any] = dict(self.meta)
+        for key in ("cycles", "attention_shifts", "improvements", "visual_improvements",
+                    "haptic_improvements", "positive_identifications", "new_objects",
+                    "map_updates"):
+            out[key] = int(c.get(key, 0))
+        out.update(self.scorer.results())
+        out["wall_seconds"] = round(float(wall_seconds), 3)
+        return out
+
+    def close(self, wall_seconds: float) -> dict[str, Any]:
+        """Close cycles.csv and write metrics.json; returns the metrics."""
+        if not self._fh.closed:
+            self._fh.close()
+        metrics = self.metrics(wall_seconds)
+        atomic_write_bytes(self.out_dir / "metrics.json",
+                           (json.dumps(metrics, indent=2) + "\n").encode())
+        return metrics
+
+
+def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
+    """Table 2's counters recomputed from a cycle log (a check on the live counters)."""
+    actions = Counter(r.action for r in rows)
+    stored = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "stored")
+    mapped = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "mapped")
+    return {
+        "cycles": len(rows),
+        "attention_shifts": actions[Action.ATTENTION_SHIFT],
+        "improvements": actions[Action.VISUAL_IMPROVEMENT] + actions[Action.HAPTIC_IMPROVEMENT],
+        "visual_improvements": actions[Action.VISUAL_IMPROVEMENT],
+        "haptic_improvements": actions[Action.HAPTIC_IMPROVEMENT],
+        "positive_identifications": mapped,
+        "new_objects": stored,
+        "map_updates": actions[Action.MAP_UPDATE],
+    }

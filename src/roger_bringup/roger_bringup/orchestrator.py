@@ -1,0 +1,216 @@
+"""Starts the Roger graph as one OS process per node, watches it, and stops it cleanly.
+
+``launch`` is not available from PyPI, so this is a plain Python orchestrator: it sets the
+network hygiene (localhost discovery, a domain id per run, logs under the run's folder),
+starts the four nodes, waits until each is visible on the graph (no fixed sleeps), records
+the run through its own monitor node, and ends every child on completion, Ctrl-C or SIGTERM.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+#: Node processes of the graph: (name, module).
+NODES: tuple[tuple[str, str], ...] = (
+    ("sim", "roger_sim.sim_node"),
+    ("perception", "roger_perception.perception_node"),
+    ("memory", "roger_memory.memory_node"),
+    ("attention", "roger_attention.attention_node"),
+)
+
+
+def pick_domain_id() -> int:
+    """A domain id for this run: ROS_DOMAIN_ID if the user set one, else a random one.
+
+    Fast DDS on Linux accepts 0-101 (and 215-232) without port clashes; 0 is left to a
+    user's default graph.
+    """
+    env = os.environ.get("ROS_DOMAIN_ID")
+    if env:
+        return int(env)
+    return random.SystemRandom().randint(1, 101)
+
+
+def ros_environment(out_dir: Path, domain_id: int, base: dict[str, str] | None = None
+                    ) -> dict[str, str]:
+    """The environment of every process of a run.
+
+    Localhost-only discovery is the default (traffic on these machines may only go to
+    loopback); a user who exported ROS_AUTOMATIC_DISCOVERY_RANGE keeps theirs.
+    """
+    env = dict(os.environ if base is None else base)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env["ROS_LOG_DIR"] = str(out_dir / "ros_logs")
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    # Each node is single-threaded by design; one torch/BLAS thread each keeps the four
+    # processes from fighting over two cores.
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        env.setdefault(var, "1")
+    return env
+
+
+def _die_with_parent() -> None:
+    """Child side of Popen: get SIGTERM if the orchestrator dies, so no node is orphaned."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def shm_files() -> set[str]:
+    """Fast DDS shared-memory files in /dev/shm."""
+    try:
+        return {f for f in os.listdir("/dev/shm") if "fastrtps" in f or "fastdds" in f}
+    except FileNotFoundError:
+        return set()
+
+
+def clean_shm(before: set[str], pids: list[int]) -> list[str]:
+    """Remove Fast DDS files left in /dev/shm by processes that were killed.
+
+    Only files that appeared during the run and that no live process holds open are
+    removed, so a concurrent graph keeps its own.
+    """
+    held: set[str] = set()
+    for pid_dir in Path("/proc").iterdir():
+        if not pid_dir.name.isdigit():
+            continue
+        try:
+            for fd in (pid_dir / "fd").iterdir():
+                target = os.readlink(fd)
+                if target.startswith("/dev/shm/"):
+                    held.add(target[len("/dev/shm/"):])
+            maps = (pid_dir / "maps").read_text()
+            for line in maps.splitlines():
+                if "/dev/shm/" in line:
+                    held.add(line.split("/dev/shm/", 1)[1].strip())
+        except OSError:
+            continue
+    removed = []
+    for name in sorted(shm_files() - before - held):
+        try:
+            os.unlink(f"/dev/shm/{name}")
+            removed.append(name)
+        except OSError:
+            pass
+    return removed
+
+
+@dataclass
+class Child:
+    """One node process."""
+
+    name: str
+    module: str
+    args: list[str]
+    log_path: Path
+    proc: subprocess.Popen[bytes] | None = None
+    restarts: int = 0
+
+    def start(self, env: dict[str, str]) -> None:
+        """Start (or restart) the process, appending to its log."""
+        log = open(self.log_path, "ab")
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", self.module, *self.args], env=env, stdout=log,
+                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                preexec_fn=_die_with_parent)
+        finally:
+            log.close()
+
+    def alive(self) -> bool:
+        """True while the process runs."""
+        return self.proc is not None and self.proc.poll() is None
+
+    def log_tail(self, lines: int = 5) -> str:
+        """The last lines of the node's log, for error messages."""
+        try:
+            text = self.log_path.read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return ""
+        return "\n".join(text[-lines:])
+
+
+@dataclass
+class Graph:
+    """The node processes of one run."""
+
+    out_dir: Path
+    env: dict[str, str]
+    node_args: dict[str, list[str]]
+    children: list[Child] = field(default_factory=list)
+    shm_before: set[str] = field(default_factory=set)
+
+    def start(self) -> None:
+        """Start every node process."""
+        logs = self.out_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        self.shm_before = shm_files()
+        for name, module in NODES:
+            args = ["--ros-args", "-p", "use_sim_time:=true", *self.node_args.get(name, [])]
+            child = Child(name, module, args, logs / f"{name}.log")
+            child.start(self.env)
+            self.children.append(child)
+
+    def dead(self) -> list[Child]:
+        """Children that have exited."""
+        return [c for c in self.children if not c.alive()]
+
+    def stop(self, timeout: float = 10.0) -> list[str]:
+        """SIGINT every child, wait, then SIGKILL what is left; clean what killed ones left.
+
+        Returns:
+            Names of the children that had to be killed.
+        """
+        for c in self.children:
+            if c.alive():
+                c.proc.send_signal(signal.SIGINT)  # type: ignore[union-attr]
+        deadline = time.monotonic() + timeout
+        for c in self.children:
+            if c.proc is None:
+                continue
+            try:
+                c.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        killed = []
+        for c in self.children:
+            if c.alive():
+                c.proc.kill()  # type: ignore[union-attr]
+                c.proc.wait()  # type: ignore[union-attr]
+                killed.append(c.name)
+        if killed:
+            clean_shm(self.shm_before, [])
+        return killed
+
+
+class StopRequested(Exception):
+    """SIGINT or SIGTERM reached the orchestrator."""
+
+
+def install_signal_handlers() -> Callable[[], None]:
+    """Turn SIGINT/SIGTERM into StopRequested; returns a function restoring the old handlers."""
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum: int, frame: Any) -> None:
+        raise StopRequested(signal.Signals(signum).name)
+
+    for s in old:
+        signal.signal(s, handler)
+
+    def restore() -> None:
+        for s, h in old.items():
+            signal.signal(s, h)
+    return restore

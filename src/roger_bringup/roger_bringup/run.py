@@ -1,0 +1,220 @@
+"""``roger run``: one run of the multi-process graph, recorded to an output folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from roger_common.errors import RogerError
+from roger_sim.world import load_world
+
+from roger_bringup.evaluation import RunRecorder
+from roger_bringup.monitor_node import MonitorNode
+from roger_bringup.orchestrator import (
+    Graph,
+    StopRequested,
+    install_signal_handlers,
+    pick_domain_id,
+    ros_environment,
+)
+
+#: Wall seconds the graph may take to come up.
+STARTUP_TIMEOUT_S = 60.0
+#: Restarts allowed per node before the run gives up.
+MAX_RESTARTS = 3
+
+
+class RunError(RogerError):
+    """The run could not complete (a node failed to start, or the graph stalled)."""
+
+
+@dataclass
+class RunOptions:
+    """Everything ``roger run`` takes (see ``roger run --help``)."""
+
+    world: Path
+    out: Path
+    policy: str = "straightforward"
+    cycles: int | None = 60
+    until_complete: bool = False
+    stable_cycles: int = 40
+    max_cycles: int = 2000
+    seed: int = 0
+    qtable: Path | None = None
+    memory: Path | None = None
+    learn: bool = True
+    image_size: int = 128
+    realtime: bool = False
+    gui: bool = False
+    domain_id: int | None = None
+    timeout_s: float | None = None
+    progress: bool = True
+    extra_params: dict[str, list[str]] = field(default_factory=dict)
+
+    def budget(self) -> int:
+        """Cycle budget handed to the attention node."""
+        if self.until_complete:
+            return self.cycles or self.max_cycles
+        return int(self.cycles or self.max_cycles)
+
+
+def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path) -> dict[str, list[str]]:
+    def p(**kw: Any) -> list[str]:
+        out: list[str] = []
+        for k, v in kw.items():
+            out += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+        return out
+    params = {
+        "sim": p(world=world, seed=opt.seed, image_size=opt.image_size, realtime=opt.realtime,
+                 gui=opt.gui),
+        "perception": [],
+        "memory": p(memory_file=memory, seed=opt.seed),
+        "attention": p(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
+                       qtable_file=qtable, learn=opt.learn),
+    }
+    for name, extra in opt.extra_params.items():
+        params.setdefault(name, []).extend(extra)
+    return params
+
+
+class Progress:
+    """A one-line progress bar on a terminal, a line every 10 % otherwise."""
+
+    def __init__(self, total: int, stream: TextIO = sys.stderr, enabled: bool = True) -> None:
+        self.total, self.stream, self.enabled = max(1, total), stream, enabled
+        self.tty = stream.isatty()
+        self._last = -1
+
+    def update(self, done: int, extra: str = "") -> None:
+        """Show ``done`` of ``total``."""
+        if not self.enabled:
+            return
+        frac = min(1.0, done / self.total)
+        if self.tty:
+            bar = "#" * int(30 * frac)
+            self.stream.write(f"\r  [{bar:<30}] {done}/{self.total} cycles {extra}   ")
+            self.stream.flush()
+        elif int(frac * 10) > self._last:
+            self._last = int(frac * 10)
+            self.stream.write(f"  {done}/{self.total} cycles {extra}\n")
+
+    def close(self) -> None:
+        """End the bar's line."""
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+
+
+def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
+    """Run the graph once and write ``cycles.csv`` and ``metrics.json`` to ``opt.out``.
+
+    Returns:
+        The metrics written to metrics.json.
+
+    Raises:
+        WorldFileError: The world file is unusable (before anything starts).
+        RunError: A node could not start or the graph stalled (outputs so far are kept).
+        StopRequested: SIGINT/SIGTERM; the graph is stopped and the outputs written first.
+    """
+    world_path = opt.world.resolve()
+    world = load_world(world_path)
+    out = opt.out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    memory = (opt.memory or out / "memory.pt").resolve()
+    qtable = (opt.qtable or out / "qtable.json").resolve()
+    domain_id = opt.domain_id if opt.domain_id is not None else pick_domain_id()
+    env = ros_environment(out, domain_id)
+    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR"):
+        os.environ.setdefault(key, env[key])
+    meta = {"policy": opt.policy, "world": str(opt.world), "seed": opt.seed,
+            "domain_id": domain_id}
+    recorder = RunRecorder(out, list(world.objects), meta)
+    budget = opt.budget()
+    timeout = opt.timeout_s if opt.timeout_s is not None else 120.0 + 3.0 * budget
+    print(f"roger run: world {opt.world} ({len(world.objects)} objects), policy {opt.policy}, "
+          f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id} (watch with: ROS_DOMAIN_ID={domain_id} "
+          f"ros2 topic echo /roger/metrics), output {out}", file=log, flush=True)
+    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable))
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id,
+               signal_handler_options=SignalHandlerOptions.NO)
+    executor = SingleThreadedExecutor(context=context)
+    monitor = MonitorNode(recorder, context=context)
+    executor.add_node(monitor)
+    restore = install_signal_handlers()
+    t0 = time.monotonic()
+    progress = Progress(budget, enabled=opt.progress)
+    status = "incomplete"
+    try:
+        graph.start()
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not monitor.graph_up():
+            executor.spin_once(timeout_sec=0.1)
+            _check_children(graph, restart=False)
+            if time.monotonic() > deadline:
+                raise RunError(f"the graph did not come up within {STARTUP_TIMEOUT_S:.0f} s; "
+                               f"node logs are in {out / 'logs'}")
+        print(f"graph up after {time.monotonic() - t0:.1f} s: "
+              f"{', '.join(c.name for c in graph.children)}", file=log, flush=True)
+        deadline = time.monotonic() + timeout
+        while True:
+            executor.spin_once(timeout_sec=0.1)
+            _check_children(graph, restart=True, env=env, log=log)
+            c = recorder.counters
+            progress.update(monitor.cycles, f"shifts {c.get('attention_shifts', 0)} "
+                            f"new {c.get('new_objects', 0)} ids "
+                            f"{c.get('positive_identifications', 0)}")
+            if monitor.done and monitor.cycles >= int(c.get("cycles", 0)):
+                status = "done"
+                break
+            if opt.until_complete and _complete(recorder, opt.stable_cycles):
+                status = "complete"
+                break
+            if time.monotonic() > deadline:
+                raise RunError(f"the run did not finish within {timeout:.0f} s "
+                               f"({monitor.cycles} cycles); node logs are in {out / 'logs'}")
+    finally:
+        progress.close()
+        restore()
+        killed = graph.stop()
+        executor.shutdown()
+        monitor.destroy_node()
+        rclpy.try_shutdown(context=context)
+        metrics = recorder.close(time.monotonic() - t0)
+        metrics_status = {"status": status, "killed_on_stop": killed,
+                          "restarts": {c.name: c.restarts for c in graph.children if c.restarts}}
+        with open(out / "run_status.json", "w") as fh:
+            json.dump(metrics_status, fh, indent=2)
+    return metrics
+
+
+def _complete(recorder: RunRecorder, stable_cycles: int) -> bool:
+    """Every object visited and no new representation for ``stable_cycles`` cycles."""
+    scores = recorder.scorer.results()
+    return (scores["objects_visited"] >= scores["objects_in_world"] > 0
+            and recorder.scorer.cycles_since_new >= stable_cycles)
+
+
+def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = None,
+                    log: TextIO = sys.stdout) -> None:
+    """Report (and restart) a node process that died."""
+    for child in graph.dead():
+        code = child.proc.returncode if child.proc is not None else None
+        if not restart or child.restarts >= MAX_RESTARTS or code == 2:
+            raise RunError(f"node {child.name} exited with code {code}:\n{child.log_tail()}")
+        child.restarts += 1
+        print(f"node {child.name} died (exit {code}); restarting it "
+              f"({child.restarts}/{MAX_RESTARTS})", file=log, flush=True)
+        assert env is not None
+        child.start(env)
+
+
+__all__ = ["RunError", "RunOptions", "StopRequested", "run_graph"]

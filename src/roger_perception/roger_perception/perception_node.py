@@ -1,0 +1,114 @@
+"""ROS node of the pre-attentive stage: stereo pair in, ROI array out.
+
+Run alone: ``roger-perception`` (or ``python -m roger_perception.perception_node``).
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, \
+    guard_parameters, time_to_seconds
+from roger_common.errors import MessageError, RogerError
+from roger_common.types import HapticReading, StereoFrame
+from sensor_msgs.msg import CameraInfo, Image
+
+from roger_interfaces.msg import HapticReading as HapticReadingMsg
+from roger_interfaces.msg import RoiArray, SpatialMap, StereoGeometry
+from roger_perception import conversions as conv
+from roger_perception.config import PerceptionConfig
+from roger_perception.perception import Perception
+
+#: Partial stereo pairs kept while their other parts arrive.
+MAX_PENDING = 8
+
+
+class PerceptionNode(Node):
+    """Joins left/right image, camera info and eye geometry by stamp and runs Perception on them."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("roger_perception", **kwargs)
+        self.config = declare_config(self, PerceptionConfig)
+        guard_parameters(self, PerceptionConfig, "", lambda: self.config)
+        self.perception = Perception(self.config)
+        self._pending: dict[tuple[int, int], dict[str, Any]] = {}
+        self._haptic: dict[int, HapticReading] = {}
+        self._mapped: list[tuple[float, float, float]] = []
+        self.pub_rois = self.create_publisher(RoiArray, "/roger/rois", RELIABLE)
+        self.create_subscription(Image, "/roger/left/image_raw",
+                                 lambda m: self._part(m.header.stamp, "left", m), IMAGES)
+        self.create_subscription(Image, "/roger/right/image_raw",
+                                 lambda m: self._part(m.header.stamp, "right", m), IMAGES)
+        self.create_subscription(StereoGeometry, "/roger/stereo_geometry",
+                                 lambda m: self._part(m.header.stamp, "geometry", m), IMAGES)
+        self.create_subscription(CameraInfo, "/roger/left/camera_info",
+                                 lambda m: self._part(m.header.stamp, "info", m), IMAGES)
+        self.create_subscription(HapticReadingMsg, "/roger/haptic", self.on_haptic, RELIABLE)
+        self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
+
+    def on_haptic(self, msg: HapticReadingMsg) -> None:
+        """Keep the haptic reading for the frame of the same goal."""
+        self._haptic[int(msg.goal_id)] = conv.msg_to_haptic(msg)
+        while len(self._haptic) > MAX_PENDING:
+            self._haptic.pop(next(iter(self._haptic)))
+
+    def on_map(self, msg: SpatialMap) -> None:
+        """Mapping status feeds the pre-attentive activation."""
+        self._mapped = conv.mapped_positions(msg)
+
+    def _part(self, stamp: Any, kind: str, msg: Any) -> None:
+        key = (stamp.sec, stamp.nanosec)
+        parts = self._pending.setdefault(key, {})
+        parts[kind] = msg
+        if len(parts) == 4:
+            del self._pending[key]
+            self._process(parts)
+        while len(self._pending) > MAX_PENDING:
+            self._pending.pop(next(iter(self._pending)))
+
+    def _process(self, parts: dict[str, Any]) -> None:
+        geometry: StereoGeometry = parts["geometry"]
+        camera = conv.camera_from_info(parts["info"])
+        try:
+            left = conv.image_to_array(parts["left"])
+            right = conv.image_to_array(parts["right"])
+            if left.shape != right.shape or left.shape != (camera.height, camera.width):
+                raise MessageError(f"stereo pair sizes {left.shape} / {right.shape} do not "
+                                   f"match the camera ({camera.height}, {camera.width})")
+        except MessageError as exc:
+            self.get_logger().error(f"stereo pair dropped: {exc}")
+            return
+        left_pose, right_pose = conv.poses_from_geometry(geometry)
+        stamp = time_to_seconds(geometry.header.stamp)
+        frame = StereoFrame(stamp=stamp, goal_id=int(geometry.goal_id), left=left, right=right,
+                            camera=camera, left_pose=left_pose, right_pose=right_pose,
+                            exposures=int(geometry.exposures),
+                            haptic=self._haptic.pop(int(geometry.goal_id), None))
+        rois = self.perception.process(frame, self._mapped)
+        self.pub_rois.publish(conv.rois_to_msg(rois, stamp, frame.goal_id))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``roger-perception``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PerceptionNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (RogerError, ValueError) as exc:
+        print(f"roger-perception: {exc}", file=sys.stderr)
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

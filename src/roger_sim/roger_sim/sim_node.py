@@ -1,0 +1,205 @@
+"""ROS node around the pybullet simulator: goals in, retinas, controller status and clock out.
+
+Run alone: ``roger-sim --ros-args -p world:=worlds/table1.yaml`` (or ``python -m
+roger_sim.sim_node``). Topics are listed in the README's node-graph table.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor
+from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, guard_parameters
+from roger_common.errors import RogerError
+from roger_common.types import Action, StereoFrame
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from roger_interfaces.msg import (
+    ActionGoal,
+    ControllerStatus,
+    ConvergenceEvent,
+    GroundTruth,
+    GroundTruthLabels,
+    HapticReading,
+    StereoGeometry,
+    WorldEdit,
+)
+from roger_interfaces.srv import EditWorld
+from roger_sim import conversions as conv
+from roger_sim.config import SimConfig
+from roger_sim.simulator import Simulator
+from roger_sim.world import load_world, object_from_dict
+
+#: Eye separation (metres), for the right CameraInfo's projection matrix.
+BASELINE = 0.16
+
+
+class SimNode(Node):
+    """Owns one Simulator; executes each ActionGoal and publishes what Roger then senses."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("roger_sim", **kwargs)
+        self.declare_parameter("world", "worlds/table1.yaml", ParameterDescriptor(
+            description="World file (YAML, docs/world-files.md)"))
+        self.declare_parameter("seed", 0, ParameterDescriptor(
+            description="Seed of pixel and sensor noise; same seed and world -> same images"))
+        self.config = declare_config(self, SimConfig)
+        guard_parameters(self, SimConfig, "", lambda: self.config)
+        world_path = str(self.get_parameter("world").value)
+        self.world = load_world(world_path)
+        self.sim = Simulator(self.world, self.config, seed=int(self.get_parameter("seed").value))
+        self._last_goal_id = -1
+        self._last_frame: StereoFrame | None = None
+        self._wall_start = time.monotonic()
+
+        self.pub_clock = self.create_publisher(Clock, "/clock", RELIABLE)
+        self.pub_left = self.create_publisher(Image, "/roger/left/image_raw", IMAGES)
+        self.pub_right = self.create_publisher(Image, "/roger/right/image_raw", IMAGES)
+        self.pub_left_info = self.create_publisher(CameraInfo, "/roger/left/camera_info", IMAGES)
+        self.pub_right_info = self.create_publisher(CameraInfo, "/roger/right/camera_info",
+                                                    IMAGES)
+        self.pub_geometry = self.create_publisher(StereoGeometry, "/roger/stereo_geometry",
+                                                  IMAGES)
+        self.pub_joints = self.create_publisher(JointState, "/roger/joint_states", RELIABLE)
+        self.pub_status = self.create_publisher(ControllerStatus, "/roger/controller_status",
+                                                RELIABLE)
+        self.pub_convergence = self.create_publisher(ConvergenceEvent, "/roger/convergence",
+                                                     RELIABLE)
+        self.pub_haptic = self.create_publisher(HapticReading, "/roger/haptic", RELIABLE)
+        self.pub_truth = self.create_publisher(GroundTruth, "/roger/ground_truth", LATCHED)
+        self.pub_labels = self.create_publisher(GroundTruthLabels, "/roger/ground_truth/labels",
+                                                IMAGES)
+        self.create_subscription(ActionGoal, "/roger/goal", self.on_goal, RELIABLE)
+        self.create_subscription(WorldEdit, "/roger/world_edit", self.on_world_edit, RELIABLE)
+        self.create_service(EditWorld, "/roger/edit_world", self.on_edit_world)
+        self._publish_clock()
+        self._publish_ground_truth()
+        self.get_logger().info(
+            f"world {world_path}: {len(self.world.objects)} objects; waiting for goals")
+
+    # -- goals ---------------------------------------------------------------------------
+    def on_goal(self, msg: ActionGoal) -> None:
+        """Execute a goal (or re-send the frame of a goal already executed)."""
+        # A goal id seen again is a retry after a lost reply: re-send, do not re-execute.
+        # Goal 0 is the initial look, which may be asked for repeatedly.
+        if msg.goal_id > 0 and msg.goal_id == self._last_goal_id and self._last_frame is not None:
+            self.get_logger().warn(f"goal {msg.goal_id} received again: re-sending its frame")
+            self._publish_frame(self._last_frame)
+            return
+        try:
+            goal = conv.msg_to_goal(msg)
+        except ValueError as exc:
+            self.get_logger().error(f"goal {msg.goal_id} refused: {exc}")
+            return
+        report, frame = self.sim.run_goal(goal)
+        stamp = self.sim.sim_time
+        self._pace(stamp)
+        self._last_goal_id, self._last_frame = goal.goal_id, frame
+        self._publish_clock()
+        self.pub_status.publish(conv.controller_status_msg(report.states, stamp))
+        self.pub_convergence.publish(conv.convergence_msg(report, goal.action, stamp))
+        names, pos, vel, eff = self.sim.joint_state()
+        self.pub_joints.publish(conv.joint_state_msg(names, pos, vel, eff, stamp))
+        if goal.action == Action.HAPTIC_IMPROVEMENT and frame.haptic is not None:
+            self.pub_haptic.publish(conv.haptic_msg(frame.haptic, goal.goal_id, stamp))
+            self._publish_ground_truth()
+        self._publish_frame(frame)
+
+    def _pace(self, sim_time: float) -> None:
+        """In real-time mode, hold the results until the wall clock has caught up."""
+        if self.config.realtime:
+            lag = sim_time - (time.monotonic() - self._wall_start)
+            if lag > 0:
+                time.sleep(min(lag, 5.0))
+
+    def _publish_frame(self, frame: StereoFrame) -> None:
+        stamp = frame.stamp
+        self.pub_left_info.publish(conv.camera_info_msg(frame.camera, stamp, conv.LEFT_FRAME,
+                                                        BASELINE, right=False))
+        self.pub_right_info.publish(conv.camera_info_msg(frame.camera, stamp, conv.RIGHT_FRAME,
+                                                         BASELINE, right=True))
+        labels = conv.ground_truth_labels_msg(frame)
+        if labels is not None:
+            self.pub_labels.publish(labels)
+        self.pub_geometry.publish(conv.stereo_geometry_msg(frame))
+        self.pub_left.publish(conv.image_msg(frame.left, stamp, conv.LEFT_FRAME))
+        self.pub_right.publish(conv.image_msg(frame.right, stamp, conv.RIGHT_FRAME))
+
+    def _publish_clock(self) -> None:
+        msg = Clock()
+        msg.clock = conv.seconds_to_time(self.sim.sim_time)
+        self.pub_clock.publish(msg)
+
+    def _publish_ground_truth(self) -> None:
+        self.pub_truth.publish(conv.ground_truth_msg(
+            self.world.name, self.sim.world.objects, self.sim.object_poses(), self.sim.sim_time))
+
+    # -- world edits ---------------------------------------------------------------------
+    def apply_edit(self, edit: WorldEdit) -> str:
+        """Apply one edit; returns what was done. Raises RogerError/KeyError/ValueError."""
+        obj = edit.object
+        if edit.op == WorldEdit.ADD:
+            spec = object_from_dict(conv.msg_to_object_dict(obj), "world_edit",
+                                    f"object {obj.name!r}")
+            self.sim.add_object(spec)
+            done = f"added {obj.name}"
+        elif edit.op == WorldEdit.REMOVE:
+            self.sim.remove_object(obj.name)
+            done = f"removed {obj.name}"
+        elif edit.op == WorldEdit.MOVE:
+            self.sim.move_object(obj.name, (obj.x, obj.y), obj.yaw)
+            done = f"moved {obj.name} to ({obj.x:.2f}, {obj.y:.2f})"
+        else:
+            raise ValueError(f"unknown world edit op {edit.op} (0 add, 1 remove, 2 move)")
+        self._publish_ground_truth()
+        return done
+
+    def on_world_edit(self, msg: WorldEdit) -> None:
+        """Topic form of a world edit: errors are logged, the node goes on."""
+        try:
+            self.get_logger().info(self.apply_edit(msg))
+        except (RogerError, KeyError, ValueError) as exc:
+            self.get_logger().error(f"world edit refused: {exc}")
+
+    def on_edit_world(self, request: EditWorld.Request,
+                      response: EditWorld.Response) -> EditWorld.Response:
+        """Service form of a world edit: the reply says whether it was applied and why not."""
+        try:
+            response.message = self.apply_edit(request.edit)
+            response.ok = True
+        except (RogerError, KeyError, ValueError) as exc:
+            response.ok, response.message = False, str(exc)
+        return response
+
+    def destroy_node(self) -> None:
+        """Disconnect the simulator with the node."""
+        self.sim.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``roger-sim``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (RogerError, ValueError, OSError) as exc:
+        print(f"roger-sim: {exc}", file=sys.stderr)
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

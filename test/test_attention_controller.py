@@ -1,0 +1,318 @@
+"""The AttentionController's cycle protocol, driven by a scripted fake world and memory.
+
+(That the core imports without ROS is checked elsewhere.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from roger_attention.config import AttentionConfig, SpatialMapConfig
+from roger_attention.controller import OUTCOMES, AttentionController, CyclePlan, CycleRecord
+from roger_attention.fsm_env import FsmEnv, train_qtable
+from roger_attention.policies import QLearningPolicy, make_policy
+from roger_attention.qlearning import QTable
+from roger_common.types import (
+    FEATURE_DIM,
+    WEIGHT_INDEX,
+    Action,
+    MatchOutcome,
+    MatchResult,
+    MemoryOp,
+    MemoryRequest,
+    Roi,
+    RunCounters,
+)
+
+S, V, H, M = (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT,
+              Action.MAP_UPDATE)
+
+
+@dataclass
+class Obj:
+    position: tuple[float, float, float]
+    value: float
+    weight: float
+    activation: float
+
+
+class FakeWorld:
+    """Objects that perception sees perfectly; a haptic goal measures the weight."""
+
+    def __init__(self, objects: dict[str, Obj]) -> None:
+        self.objects = dict(objects)
+
+    def rois(self, haptic_target: tuple[float, float, float] | None = None) -> list[Roi]:
+        out = []
+        for k, o in enumerate(self.objects.values()):
+            features = np.full(FEATURE_DIM, o.value, np.float32)
+            known = np.ones(FEATURE_DIM, bool)
+            touched = haptic_target is not None and math.dist(haptic_target, o.position) < 0.05
+            if touched:
+                features[WEIGHT_INDEX] = o.weight
+            else:
+                features[WEIGHT_INDEX], known[WEIGHT_INDEX] = 0.0, False
+            out.append(Roi(roi_id=k, bbox=(10 * k, 0, 10 * k + 8, 8), position=o.position,
+                           features=features, known=known, activation=o.activation))
+        return out
+
+    @staticmethod
+    def visible(position: tuple[float, float, float]) -> bool:
+        return True   # the whole scene is always in view
+
+
+class FakeMemory:
+    """Identifies a stored object when the known features agree; needs the weight unless
+    the match is final."""
+
+    def __init__(self, always_new: bool = False) -> None:
+        self.stored: list[tuple[np.ndarray, np.ndarray]] = []
+        self.requests: list[MemoryRequest] = []
+        self.always_new = always_new
+
+    def handle(self, req: MemoryRequest) -> MatchResult:
+        self.requests.append(req)
+        if req.op is MemoryOp.STORE:
+            self.stored.append((req.features.copy(), req.known.copy()))
+            return MatchResult(MatchOutcome.NEW, len(self.stored) - 1, 1.0)
+        if self.always_new:
+            return MatchResult(MatchOutcome.NEW)
+        if req.known[WEIGHT_INDEX] or req.final_trial:
+            for address, (f, k) in enumerate(self.stored):
+                both = k & req.known
+                if np.all(np.abs(f[both] - req.features[both]) < 0.02):
+                    return MatchResult(MatchOutcome.IDENTIFIED, address, 0.9)
+        if req.final_trial:
+            return MatchResult(MatchOutcome.NEW)
+        return MatchResult(MatchOutcome.UNDETERMINED)
+
+
+def three_objects() -> dict[str, Obj]:
+    return {"a": Obj((0.5, -0.3, 0.05), 0.2, 0.1, 0.4),
+            "b": Obj((0.5, 0.0, 0.05), 0.4, 0.5, 0.9),
+            "c": Obj((0.5, 0.3, 0.05), 0.6, 0.9, 0.6)}
+
+
+def check_table2(c: RunCounters) -> None:
+    assert c.attention_shifts + c.improvements + c.map_updates == c.cycles
+    assert c.map_updates == c.positive_identifications + c.new_objects
+
+
+class Driver:
+    """The in-process loop of the cycle protocol (what the ROS attention node also does)."""
+
+    def __init__(self, ctl: AttentionController, world: FakeWorld, memory: FakeMemory) -> None:
+        self.ctl, self.world, self.memory = ctl, world, memory
+        self.now = 0.0
+        self.log: list[tuple[CyclePlan, CycleRecord]] = []
+        ctl.observe(world.rois(), self.now, world.visible)
+
+    def cycle(self) -> tuple[CyclePlan, CycleRecord]:
+        plan = self.ctl.begin_cycle(self.now)
+        result = None
+        if plan.goal is not None:
+            self.now += 0.5
+            touch = plan.goal.target if plan.goal.action is H else None
+            self.ctl.observe(self.world.rois(touch), self.now, self.world.visible)
+            req = self.ctl.match_request()
+            if req is not None:
+                result = self.memory.handle(req)
+        elif plan.memory_request is not None:
+            result = self.memory.handle(plan.memory_request)
+        record = self.ctl.end_cycle(result, self.now)
+        check_table2(record.counters)
+        assert record.outcome in OUTCOMES
+        self.log.append((plan, record))
+        return plan, record
+
+    def run(self, n: int) -> list[CycleRecord]:
+        return [self.cycle()[1] for _ in range(n)]
+
+
+def make_ctl(policy: str = "straightforward", seed: int = 0, learn: bool = True,
+             table: QTable | None = None) -> AttentionController:
+    cfg = AttentionConfig(policy=policy, spatial_map=SpatialMapConfig(vanish_frames=2))
+    rng = np.random.default_rng(seed)
+    if table is not None:
+        pol = QLearningPolicy(table, rng, learn=learn)
+    else:
+        pol = make_policy(cfg.policy, cfg, rng, learn=learn)
+    return AttentionController(cfg, pol, rng)
+
+
+def test_straightforward_steps_map_every_object() -> None:
+    d = Driver(make_ctl(), FakeWorld(three_objects()), FakeMemory())
+    records = d.run(12)
+    assert [r.action for r in records] == [S, V, H, M] * 3
+    assert [r.outcome for r in records] == ["undetermined", "undetermined", "new",
+                                            "stored"] * 3
+    assert [r.state_after for r in records[:4]] == ["000", "000", "100", "101"]
+    # Winner-take-all over activation: b (0.9), then c (0.6), then a (0.4).
+    first_shift_targets = [p.goal.target for p, r in d.log if r.action is S]
+    assert first_shift_targets == [(0.5, 0.0, 0.05), (0.5, 0.3, 0.05), (0.5, -0.3, 0.05)]
+    c = d.ctl.counters
+    assert (c.attention_shifts, c.visual_improvements, c.haptic_improvements,
+            c.map_updates, c.new_objects, c.positive_identifications) == (3, 3, 3, 3, 3, 0)
+    assert len(d.memory.stored) == 3 and all(k[WEIGHT_INDEX] for _, k in d.memory.stored)
+    assert sorted(e.address for e in d.ctl.spatial_map) == [0, 1, 2]
+    assert len(d.ctl.mapped_positions()) == 3
+    assert [r.reward for r in records if r.action is M] == pytest.approx([1.5] * 3)
+    assert all(r.td_error is None for r in records) and d.ctl.td_errors == []
+
+
+def test_vigilance_shifts_to_largest_interest_after_all_mapped() -> None:
+    d = Driver(make_ctl(), FakeWorld(three_objects()), FakeMemory())
+    d.run(12)
+    visited = []
+    for _ in range(30):
+        smap, focus = d.ctl.spatial_map, d.ctl.focus
+        smap.advance(d.now)
+        others = {e.entry_id: e.interest for e in smap if e.entry_id != focus}
+        plan, record = d.cycle()
+        if plan.action is S:
+            assert others[plan.entry_id] == pytest.approx(max(others.values()))
+            assert others[plan.entry_id] > 0.0
+            visited.append(plan.entry_id)
+            assert smap.get(plan.entry_id).interest == 0.0      # reset on focus
+        assert record.action is not M                          # nothing new to map
+    assert set(visited) == {e.entry_id for e in d.ctl.spatial_map}
+    assert len(visited) >= 6
+    c = d.ctl.counters
+    assert (c.map_updates, c.new_objects) == (3, 3)
+    # A revisit: shift (001), visual, haptic -> identified (011), then the next shift.
+    assert [(r.action, r.outcome, r.state_after) for _, r in d.log[12:16]] == [
+        (S, "undetermined", "001"), (V, "undetermined", "001"), (H, "identified", "011"),
+        (S, "undetermined", "001")]
+
+
+def test_interest_grows_for_others_and_stays_zero_in_focus() -> None:
+    d = Driver(make_ctl(), FakeWorld(three_objects()), FakeMemory())
+    d.run(2)
+    smap = d.ctl.spatial_map
+    assert smap.get(d.ctl.focus).interest == 0.0
+    others = [e.interest for e in smap if e.entry_id != d.ctl.focus]
+    assert all(i == pytest.approx(0.1 * d.now) for i in others)   # default 0.1 per sim s
+
+
+def test_new_object_mid_run_is_visited_and_mapped() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(18)
+    world.objects["d"] = Obj((0.8, 0.0, 0.05), 0.8, 0.3, 0.1)
+    records = d.run(10)
+    new_entry = [e for e in d.ctl.spatial_map if e.position == (0.8, 0.0, 0.05)]
+    assert len(new_entry) == 1 and new_entry[0].mapped
+    assert any(r.action is M and r.entry_id == new_entry[0].entry_id for r in records)
+    assert d.ctl.counters.new_objects == 4 and len(d.ctl.mapped_positions()) == 4
+
+
+def test_vanished_and_moved_objects_the_map_follows() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)
+    del world.objects["a"]
+    o = world.objects["c"]
+    world.objects["c"] = Obj((0.9, 0.3, 0.05), o.value, o.weight, o.activation)
+    d.run(12)
+    positions = sorted(d.ctl.mapped_positions())
+    assert positions == [(0.5, 0.0, 0.05), (0.9, 0.3, 0.05)]
+    assert len(d.ctl.spatial_map) == 2
+    c = d.ctl.counters
+    assert c.positive_identifications == 1 and c.new_objects == 3   # c re-identified
+
+
+def test_contradicted_mapped_entry_is_mapped_again() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)
+    o = world.objects["a"]
+    world.objects["a"] = Obj(o.position, 0.95, 0.7, o.activation)   # swapped in place
+    d.run(16)
+    assert d.ctl.counters.new_objects == 4 and len(d.memory.stored) == 4
+    assert d.ctl.spatial_map.all_mapped()
+
+
+def test_new_before_the_final_trial_counts_as_undetermined() -> None:
+    d = Driver(make_ctl(), FakeWorld(three_objects()), FakeMemory(always_new=True))
+    records = d.run(4)
+    assert [r.outcome for r in records] == ["undetermined", "undetermined", "new", "stored"]
+    finals = [q.final_trial for q in d.memory.requests if q.op is MemoryOp.MATCH]
+    assert finals == [False, False, True]
+
+
+def test_lost_focus_gives_no_match_request() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.cycle()                                   # shift onto b
+    del world.objects["b"]
+    plan, record = d.cycle()                    # visual improvement on b, now gone
+    assert plan.action is V and record.outcome == "lost"
+    assert d.memory.requests[-1].request_id == 1 and len(d.memory.requests) == 1
+    plan, record = d.cycle()                    # haptic, lost again; entry vanishes
+    assert record.outcome == "lost" and d.ctl.focus is None
+    plan, _ = d.cycle()
+    assert plan.action is S and plan.entry_id != record.entry_id
+
+
+def test_ids_increase_and_are_unique() -> None:
+    d = Driver(make_ctl(), FakeWorld(three_objects()), FakeMemory())
+    d.run(30)
+    rids = [q.request_id for q in d.memory.requests]
+    gids = [p.goal.goal_id for p, _ in d.log if p.goal is not None]
+    assert rids == sorted(set(rids)) and gids == sorted(set(gids)) and len(gids) > 10
+    assert [p.cycle for p, _ in d.log] == list(range(1, 31))
+    assert [r.cycle for _, r in d.log] == list(range(1, 31))
+
+
+def test_protocol_misuse_raises() -> None:
+    ctl = make_ctl()
+    with pytest.raises(RuntimeError):
+        ctl.end_cycle(None, 0.0)
+    ctl.observe(FakeWorld(three_objects()).rois(), 0.0)
+    ctl.begin_cycle(0.0)
+    with pytest.raises(RuntimeError):
+        ctl.begin_cycle(0.0)
+
+
+def test_empty_map_gives_an_idle_uncounted_cycle() -> None:
+    ctl = make_ctl()
+    plan = ctl.begin_cycle(0.0)
+    assert plan.idle and plan.goal is None and plan.entry_id == -1
+    assert ctl.match_request() is None
+    record = ctl.end_cycle(None, 0.0)
+    assert record.outcome == "none" and ctl.counters.cycles == 0
+
+
+def test_qlearning_policy_switch_learns_and_maps_everything() -> None:
+    d = Driver(make_ctl("qlearning", seed=3), FakeWorld(three_objects()), FakeMemory())
+    records = d.run(80)
+    assert d.ctl.spatial_map.all_mapped() and len(d.ctl.mapped_positions()) == 3
+    assert len(d.ctl.td_errors) == 80 and all(r.td_error is not None for r in records)
+    assert d.ctl.counters.new_objects == 3
+    rewarded = [r for r in records if r.reward > 0]
+    assert rewarded and all(r.action is M for r in rewarded)
+
+
+def test_learned_greedy_table_runs_without_learning() -> None:
+    table = QTable()
+    train_qtable(FsmEnv(), table, 300, np.random.default_rng(0), seed=0)
+    d = Driver(make_ctl("qlearning", learn=False, table=table), FakeWorld(three_objects()),
+               FakeMemory())
+    before = table.q.copy()
+    records = d.run(12)
+    assert d.ctl.spatial_map.all_mapped()
+    assert [r.action for r in records].count(S) == 3      # never abandons an unmapped ROI
+    assert all(r.td_error is None for r in records)
+    np.testing.assert_array_equal(table.q, before)
+
+
+def test_same_seed_same_run() -> None:
+    def run(seed: int) -> list[tuple[str, str, str]]:
+        d = Driver(make_ctl("qlearning", seed=seed), FakeWorld(three_objects()), FakeMemory())
+        return [(r.state_before, r.action.name, r.state_after) for r in d.run(40)]
+
+    assert run(8) == run(8)
+    assert run(8) != run(9)

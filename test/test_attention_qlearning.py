@@ -1,0 +1,195 @@
+"""Tabular Q-learning (section 4.2): the update rule, epsilon-greedy choice, atomic files,
+convergence on the FSM-only environment, and the policy switch.
+
+(That the core imports without ROS is checked elsewhere.)
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from roger_attention.config import AttentionConfig, FsmEnvConfig, QLearningConfig
+from roger_attention.fsm import State, allowed_actions
+from roger_attention.fsm_env import FsmEnv, train_qtable
+from roger_attention.policies import (
+    Policy,
+    QLearningPolicy,
+    StraightforwardPolicy,
+    make_policy,
+)
+from roger_attention.qlearning import QTable
+from roger_common.errors import ConfigError, MemoryFileError
+from roger_common.types import Action
+
+S, V, H, M = (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT,
+              Action.MAP_UPDATE)
+S000, S010, S011, S100 = (State.from_bits(b) for b in ("000", "010", "011", "100"))
+
+
+def test_paper_defaults() -> None:
+    cfg = QLearningConfig()
+    assert (cfg.alpha, cfg.gamma) == (0.5, 0.1)
+
+
+def test_update_rule_terminal_and_not() -> None:
+    t = QTable(QLearningConfig(alpha=0.5, gamma=0.1))
+    td = t.update(S010, M, 2.0, S011, terminated=True)
+    assert td == pytest.approx(2.0)
+    assert t.value(S010, M) == pytest.approx(1.0)           # 0 + 0.5 * (2 - 0)
+    t.q[S010.index, int(M)] = 4.0
+    t.q[S010.index, int(S)] = 9.0   # not in next_allowed below: must be ignored
+    td = t.update(S000, V, 0.0, S010, terminated=False, next_allowed=(M,))
+    assert td == pytest.approx(0.1 * 4.0)
+    assert t.value(S000, V) == pytest.approx(0.5 * 0.4)
+    td = t.update(S000, V, 0.0, S010, terminated=False)      # default A(s') includes S
+    assert td == pytest.approx(0.1 * 9.0 - 0.2)
+    assert t.td_errors == pytest.approx([2.0, 0.4, 0.9 - 0.2])
+
+
+def test_select_action_greedy_random_ties_and_exploration() -> None:
+    t = QTable()
+    rng = np.random.default_rng(0)
+    allowed = allowed_actions(S000)
+    tied = {t.select_action(S000, rng, allowed, epsilon=0.0) for _ in range(200)}
+    assert tied == {S, V, H}                       # all tied at 0: random tie-breaks
+    t.q[S000.index, int(H)] = 1.0
+    greedy = {t.select_action(S000, rng, allowed, epsilon=0.0) for _ in range(200)}
+    assert greedy == {H}
+    t.q[S000.index, int(M)] = 5.0                   # not allowed in 000: never chosen
+    explore = [t.select_action(S000, rng, allowed, epsilon=1.0) for _ in range(300)]
+    assert set(explore) == {S, V, H}
+
+
+def test_save_load_roundtrip_atomic(tmp_path: Path) -> None:
+    t = QTable(QLearningConfig(alpha=0.3, gamma=0.2, epsilon=0.05))
+    t.q[:] = np.arange(t.q.size, dtype=float).reshape(t.q.shape) / 7.0
+    path = tmp_path / "sub" / "q.json"
+    t.save(path)
+    assert sorted(p.name for p in path.parent.iterdir()) == ["q.json"]   # no temp left
+    back = QTable.load(path)
+    np.testing.assert_array_equal(back.q, t.q)
+    assert (back.config.alpha, back.config.gamma, back.config.epsilon) == (0.3, 0.2, 0.05)
+    t.q[0, 0] = -1.0
+    t.save(path)                                    # overwrite
+    assert QTable.load(path).q[0, 0] == -1.0
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"{not json", b"[1, 2]", b'{"format": "other"}', b"\xff\xfe",
+     None],  # None: a valid file with a wrong-shaped table, built below
+)
+def test_corrupt_file_names_it(tmp_path: Path, content: bytes | None) -> None:
+    path = tmp_path / "bad.json"
+    if content is None:
+        data = QTable().to_dict()
+        data["q"] = [[0.0] * 4] * 5
+        content = json.dumps(data).encode()
+    path.write_bytes(content)
+    with pytest.raises(MemoryFileError, match="bad.json"):
+        QTable.load(path)
+
+
+def test_missing_file_names_it(tmp_path: Path) -> None:
+    with pytest.raises(MemoryFileError, match="nothere.json"):
+        QTable.load(tmp_path / "nothere.json")
+
+
+def _train(seed: int, episodes: int = 300,
+           env_cfg: FsmEnvConfig | None = None) -> tuple[QTable, list[float]]:
+    env = FsmEnv(env_cfg)
+    table = QTable()
+    log = train_qtable(env, table, episodes, np.random.default_rng(seed), seed=seed)
+    return table, log.episode_mean_abs_td
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_td_error_falls(seed: int) -> None:
+    _, td = _train(seed)
+    first, last = float(np.mean(td[:50])), float(np.mean(td[-50:]))
+    assert last < 0.5 * first, (first, last)
+
+
+def test_training_is_reproducible() -> None:
+    a, _ = _train(4, 100)
+    b, _ = _train(4, 100)
+    c, _ = _train(5, 100)
+    np.testing.assert_array_equal(a.q, b.q)
+    assert not np.array_equal(a.q, c.q)
+
+
+@pytest.mark.parametrize("p_mapped", [0.0, 0.25])
+def test_greedy_policy_ends_every_unmapped_rois_episode_with_a_map_update(
+        p_mapped: float) -> None:
+    cfg = FsmEnvConfig(p_mapped=p_mapped)
+    table, _ = _train(7, 300, cfg)
+    policy = QLearningPolicy(table, np.random.default_rng(1), learn=False)
+    env = FsmEnv(cfg)
+    unmapped_episodes = 0
+    for episode in range(200):
+        state, info = env.reset(seed=11 if episode == 0 else None)
+        unmapped = not info["mapped"]
+        actions = []
+        done = truncated = False
+        while not done:
+            a = policy.select_action(state, info["allowed"])
+            actions.append(a)
+            state, _, done, truncated, info = env.step(a)
+            done = done or truncated
+        assert not truncated
+        if unmapped:
+            unmapped_episodes += 1
+            assert actions[-1] is M, actions
+            assert S not in actions
+    assert unmapped_episodes > 100
+
+
+def test_make_policy_switch_and_modes(tmp_path: Path) -> None:
+    cfg = AttentionConfig()
+    rng = np.random.default_rng(0)
+    sf = make_policy("straightforward", cfg, rng)
+    assert isinstance(sf, StraightforwardPolicy) and not sf.learns
+    assert isinstance(sf, Policy)
+    ql = make_policy("qlearning", cfg, rng)                 # training from scratch
+    assert isinstance(ql, QLearningPolicy) and ql.learns and isinstance(ql, Policy)
+    assert ql.update(S010, M, 2.0, S011, True, (S,)) == pytest.approx(2.0)
+    path = tmp_path / "q.json"
+    ql.save(path)
+    runner = make_policy("qlearning", cfg, rng, qtable_path=path, learn=False)
+    assert isinstance(runner, QLearningPolicy) and not runner.learns
+    assert runner.table.value(S010, M) == pytest.approx(1.0)
+    assert runner.select_action(S010, (S, M)) is M
+    before = runner.table.q.copy()
+    assert runner.update(S010, M, 2.0, S011, True, (S,)) is None
+    np.testing.assert_array_equal(runner.table.q, before)
+    resumed = make_policy("qlearning", cfg, rng, qtable_path=path, learn=True)
+    assert resumed.table.value(S010, M) == pytest.approx(1.0)
+    with pytest.raises(ConfigError, match="qtable_path"):
+        make_policy("qlearning", cfg, rng, learn=False)
+    with pytest.raises(MemoryFileError, match="missing.json"):
+        make_policy("qlearning", cfg, rng, qtable_path=tmp_path / "missing.json", learn=False)
+    with pytest.raises(ConfigError, match="greedy"):
+        make_policy("greedy", cfg, rng)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [({"alpha": 0.0}, "alpha"), ({"alpha": 1.5}, "alpha"), ({"gamma": -0.1}, "gamma"),
+     ({"epsilon": 2.0}, "epsilon"), ({"gamma": float("nan")}, "gamma")],
+)
+def test_qlearning_config_rejects(kwargs: dict[str, float], field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        QLearningConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [({"policy": "random"}, "policy"), ({"visual_trials": -1}, "visual_trials"),
+     ({"haptic_trials": 1.5}, "haptic_trials")],
+)
+def test_attention_config_rejects(kwargs: dict[str, object], field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        AttentionConfig(**kwargs)
