@@ -1,0 +1,76 @@
+"""The documented topics of the Roger graph: one table for the README, the tests and tools.
+
+Each row: topic, message type, QoS profile name, publisher node, subscriber nodes, what
+it carries. ``per_cycle`` marks topics that carry messages in every run of a few cycles.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One row of the node-graph table."""
+
+    name: str
+    type: str
+    qos: str
+    publisher: str
+    subscribers: str
+    meaning: str
+    per_cycle: bool = True
+
+    def msg_class(self) -> type:
+        """The message class (imports the message package)."""
+        pkg, _, cls = self.type.partition("/msg/") if "/msg/" in self.type else \
+            self.type.partition("/")
+        return getattr(importlib.import_module(f"{pkg}.msg"), cls)
+
+
+TOPICS: tuple[Topic, ...] = (
+    Topic("/clock", "rosgraph_msgs/Clock", "reliable", "sim", "all (use_sim_time)",
+          "simulated time, advanced by each executed goal"),
+    Topic("/roger/left/image_raw", "sensor_msgs/Image", "images", "sim", "perception",
+          "left retina, 32FC1 intensity in [0, 1], Phong-lit"),
+    Topic("/roger/right/image_raw", "sensor_msgs/Image", "images", "sim", "perception",
+          "right retina"),
+    Topic("/roger/left/camera_info", "sensor_msgs/CameraInfo", "images", "sim",
+          "perception, attention", "left intrinsics"),
+    Topic("/roger/right/camera_info", "sensor_msgs/CameraInfo", "images", "sim", "-",
+          "right intrinsics, P carries -f*baseline"),
+    Topic("/roger/stereo_geometry", "roger_interfaces/StereoGeometry", "images", "sim",
+          "perception, attention", "eye poses of each stereo pair (verging eyes)"),
+    Topic("/roger/joint_states", "sensor_msgs/JointState", "reliable", "sim", "-",
+          "neck, eye and arm joints after each goal"),
+    Topic("/roger/controller_status", "roger_interfaces/ControllerStatus", "reliable", "sim",
+          "-", "status of the five servo controllers"),
+    Topic("/roger/convergence", "roger_interfaces/ConvergenceEvent", "reliable", "sim", "-",
+          "a goal finished: converged or failed, sim time and physics steps"),
+    Topic("/roger/haptic", "roger_interfaces/HapticReading", "reliable", "sim", "perception",
+          "what an arm felt (weight) in a haptic improvement", per_cycle=False),
+    Topic("/roger/ground_truth", "roger_interfaces/GroundTruth", "latched", "sim",
+          "monitor (evaluation only)", "the world's objects and poses"),
+    Topic("/roger/ground_truth/labels", "roger_interfaces/GroundTruthLabels", "images", "sim",
+          "monitor (evaluation only)", "which object each retina pixel shows"),
+    Topic("/roger/rois", "roger_interfaces/RoiArray", "reliable", "perception", "attention",
+          "ROIs of each stereo pair: features (eqs. 1-5), position, activation"),
+    Topic("/roger/goal", "roger_interfaces/ActionGoal", "reliable", "attention", "sim",
+          "physical action of a control cycle"),
+    Topic("/roger/memory/request", "roger_interfaces/MemoryRequest", "reliable", "attention",
+          "memory", "match or store a feature vector"),
+    Topic("/roger/memory/result", "roger_interfaces/MemoryResult", "reliable", "memory",
+          "attention", "identified / new / undetermined, address, confidence"),
+    Topic("/roger/memory/learned", "roger_interfaces/MemoryResult", "latched", "memory", "-",
+          "the last object stored in long-term memory", per_cycle=False),
+    Topic("/roger/policy_state", "roger_interfaces/PolicyState", "reliable", "attention",
+          "monitor", "each cycle: state bits, action, reward, TD error, focus"),
+    Topic("/roger/metrics", "roger_interfaces/Metrics", "reliable", "attention", "monitor",
+          "Table 2 counters as the run goes"),
+    Topic("/roger/spatial_map", "roger_interfaces/SpatialMap", "latched", "attention",
+          "perception", "the pre-attentional map: positions, mapping status, interest"),
+    Topic("/roger/world_edit", "roger_interfaces/WorldEdit", "reliable", "user", "sim",
+          "add / remove / move an object while running (also service /roger/edit_world)",
+          per_cycle=False),
+)

@@ -1,0 +1,124 @@
+"""End to end: ``roger run`` starts the real graph as separate processes."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import WORLDS, child_pids
+
+ROGER = [sys.executable, "-m", "roger_bringup.cli"]
+CONTRACT_COLUMNS = ["cycle", "state", "action", "reward", "td_error", "roi", "true_object",
+                    "outcome"]
+METRIC_KEYS = {"policy", "world", "seed", "cycles", "attention_shifts", "improvements",
+               "positive_identifications", "new_objects", "map_updates", "objects_in_world",
+               "objects_visited", "identification_precision", "novelty_precision",
+               "wall_seconds"}
+
+
+def descendants(pid: int) -> set[int]:
+    """Every live descendant of ``pid``."""
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != "Z":
+                children.setdefault(int(fields[1]), []).append(int(d.name))
+    out, todo = set(), [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.add(c)
+            todo.append(c)
+    return out
+
+
+@pytest.mark.parametrize("policy", ["straightforward", "qlearning"])
+def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_domain, policy):
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--policy", policy,
+         "--cycles", "8", "--seed", "3", "--out", str(out), "--quiet",
+         "--domain-id", str(ros_domain), "--timeout", "200"],
+        capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
+    assert f"ROS_DOMAIN_ID={ros_domain}" in proc.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert METRIC_KEYS <= set(metrics)
+    assert metrics["cycles"] == 8 and metrics["policy"] == policy
+    assert metrics["attention_shifts"] + metrics["improvements"] + metrics["map_updates"] == 8
+    assert metrics["map_updates"] == (metrics["positive_identifications"]
+                                      + metrics["new_objects"])
+    assert metrics["objects_in_world"] == 4 and metrics["objects_visited"] >= 1
+    with open(out / "cycles.csv") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][:8] == CONTRACT_COLUMNS
+    assert [int(r[0]) for r in rows[1:]] == list(range(1, 9))
+    assert any(r[6] for r in rows[1:]), "no cycle had an object under the attention window"
+    for name in ("sim", "perception", "memory", "attention"):
+        assert (out / "logs" / f"{name}.log").exists()
+    status = json.loads((out / "run_status.json").read_text())
+    assert status["status"] == "done" and status["killed_on_stop"] == []
+
+
+def test_sigint_mid_run_stops_every_node(no_leaks, tmp_path, ros_domain):
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--cycles", "100000",
+         "--out", str(out), "--quiet", "--domain-id", str(ros_domain)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        # Wait until cycles are being recorded: the whole graph is running.
+        while time.monotonic() < deadline:
+            csv_path = out / "cycles.csv"
+            if csv_path.exists() and len(csv_path.read_text().splitlines()) > 3:
+                break
+            assert proc.poll() is None, proc.stdout.read()
+            time.sleep(0.2)
+        else:
+            pytest.fail("the run never started cycling")
+        nodes = descendants(proc.pid)
+        assert len(nodes) >= 4
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, output
+    assert "stopped by SIGINT" in output
+    time.sleep(0)  # children were reaped by the orchestrator before it exited
+    alive = [p for p in nodes if Path(f"/proc/{p}").exists()
+             and "Z" not in (Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0])]
+    assert not alive, f"node processes still alive after SIGINT: {alive}"
+    assert (out / "metrics.json").exists(), "metrics.json not written on interrupt"
+    assert os.getpid() not in child_pids()
+
+
+@pytest.mark.parametrize("content, field", [
+    ("objects:\n  - name: a\n    shape: cube\n    position: [0.8, 0.0]\n    size: 0.2\n"
+     "    intensity: 90\n    weight: 1.0\n", "shape"),
+    ("objects: [\n", "line"),
+    ("objects:\n  - name: a\n    shape: box\n    position: [0.8, 0.0]\n    size: -0.2\n"
+     "    intensity: 90\n    weight: 1.0\n", "size"),
+])
+def test_bad_world_file_gives_one_line_and_exit_2(tmp_path, content, field):
+    world = tmp_path / "bad.yaml"
+    world.write_text(content)
+    proc = subprocess.run([*ROGER, "run", "--world", str(world), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "pybullet build" not in ln]
+    assert len(lines) == 1, proc.stderr
+    assert "bad.yaml" in lines[0] and field in lines[0] and "Traceback" not in proc.stderr
