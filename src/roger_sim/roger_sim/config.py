@@ -1,0 +1,136 @@
+"""Configuration of the simulator: one frozen, validated dataclass.
+
+Values flow one way: ROS parameters -> ``SimConfig`` -> core. Every field is checked in
+``__post_init__``; a bad value raises :class:`roger_common.errors.ConfigError` naming the
+field and the value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from roger_common.errors import ConfigError
+
+
+def _check(name: str, value: object, ok: bool, rule: str) -> None:
+    if not ok:
+        raise ConfigError(f"SimConfig.{name} = {value!r}: must be {rule}")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Parameters of the Roger-the-Crab simulator.
+
+    Attributes:
+        image_size: Width and height of each retina in pixels (the original used 128).
+        fov_deg: Field of view of each retina, degrees (vertical = horizontal, square).
+        time_step: Physics step, simulated seconds.
+        pixel_noise: Std of the Gaussian intensity noise added to each pixel, [0, 1] units.
+        weight_noise_kg: Std of the Gaussian noise of a haptic weight measurement, kg.
+        goal_timeout_s: Simulated seconds a goal may take before transient controllers fail.
+        improve_exposures: Renders integrated after a visual improvement (noise / sqrt(n)).
+        realtime: Sleep so that simulated time follows wall-clock time (for watching).
+        gui: Open pybullet's own window instead of the headless DIRECT client.
+        light_ambient: Phong ambient coefficient of the TinyRenderer.
+        light_diffuse: Phong diffuse coefficient.
+        light_specular: Phong specular coefficient.
+        light_distance: Distance of the light from the world origin, metres.
+        shadows: Let the TinyRenderer cast shadows.
+        ground_grey: Grey level of the ground plane, [0, 1] (near black).
+        robot_grey: Grey level of the robot's own links, [0, 1] (near black).
+        near_clip: Near clipping distance of the retinas, metres.
+        far_clip: Far clipping distance of the retinas, metres.
+        head_bandwidth: Natural frequency of the neck and eye servos, rad/s.
+        arm_bandwidth: Natural frequency of the arm servos, rad/s.
+        shift_tolerance_rad: Joint error under which neck and eyes count as converged
+            after an attention shift, radians.
+        fine_tolerance_rad: Tighter eye tolerance of a visual improvement, radians.
+        arm_tolerance: Joint error under which an arm phase counts as converged
+            (radians for the planar joints, metres for the lift joint).
+        velocity_tolerance: Joint speed under which a servo counts as at rest (rad/s, m/s).
+        settle_steps: Consecutive steps within tolerance needed to converge.
+        lift_height_m: How high a haptic improvement lifts an object, metres.
+        touch_speed: Speed of the hand coming down onto an object, m/s.
+        weigh_steps: Physics steps averaged for one weight measurement.
+    """
+
+    image_size: int = 128
+    fov_deg: float = 60.0
+    time_step: float = 1.0 / 240.0
+    pixel_noise: float = 0.01
+    weight_noise_kg: float = 0.02
+    goal_timeout_s: float = 5.0
+    improve_exposures: int = 4
+    realtime: bool = False
+    gui: bool = False
+    light_ambient: float = 0.6
+    light_diffuse: float = 0.35
+    light_specular: float = 0.05
+    light_distance: float = 10.0
+    shadows: bool = False
+    ground_grey: float = 0.05
+    robot_grey: float = 0.05
+    near_clip: float = 0.03
+    far_clip: float = 60.0
+    head_bandwidth: float = 40.0
+    arm_bandwidth: float = 30.0
+    shift_tolerance_rad: float = 0.005
+    fine_tolerance_rad: float = 0.001
+    arm_tolerance: float = 0.01
+    velocity_tolerance: float = 0.05
+    settle_steps: int = 3
+    lift_height_m: float = 0.08
+    touch_speed: float = 0.5
+    weigh_steps: int = 24
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("bool", bool):
+                _check(f.name, value, isinstance(value, bool), "true or false")
+            elif f.type in ("int", int):
+                _check(f.name, value, isinstance(value, int) and not isinstance(value, bool),
+                       "an integer")
+            else:
+                _check(f.name, value, isinstance(value, (int, float))
+                       and not isinstance(value, bool) and math.isfinite(value),
+                       "a finite number")
+        _check("image_size", self.image_size, 16 <= self.image_size <= 1024, "in [16, 1024]")
+        _check("fov_deg", self.fov_deg, 10.0 <= self.fov_deg <= 120.0, "in [10, 120] degrees")
+        _check("time_step", self.time_step, 1e-4 <= self.time_step <= 0.02,
+               "in [1e-4, 0.02] s")
+        _check("pixel_noise", self.pixel_noise, 0.0 <= self.pixel_noise <= 0.5, "in [0, 0.5]")
+        _check("weight_noise_kg", self.weight_noise_kg, 0.0 <= self.weight_noise_kg <= 1.0,
+               "in [0, 1] kg")
+        _check("goal_timeout_s", self.goal_timeout_s, 0.1 <= self.goal_timeout_s <= 60.0,
+               "in [0.1, 60] s")
+        _check("improve_exposures", self.improve_exposures, 1 <= self.improve_exposures <= 64,
+               "in [1, 64]")
+        for name in ("light_ambient", "light_diffuse", "light_specular", "ground_grey",
+                     "robot_grey"):
+            value = getattr(self, name)
+            _check(name, value, 0.0 <= value <= 1.0, "in [0, 1]")
+        _check("light_distance", self.light_distance, self.light_distance > 0, "> 0")
+        _check("near_clip", self.near_clip, 0.001 <= self.near_clip < 0.1, "in [0.001, 0.1) m")
+        _check("far_clip", self.far_clip, self.far_clip > 1.0, "> 1 m")
+        for name in ("head_bandwidth", "arm_bandwidth"):
+            value = getattr(self, name)
+            # Explicit PD on a discrete step is stable only well below the Nyquist rate.
+            limit = 0.5 / self.time_step
+            _check(name, value, 1.0 <= value <= limit, f"in [1, {limit:g}] rad/s")
+        for name in ("shift_tolerance_rad", "fine_tolerance_rad", "arm_tolerance",
+                     "velocity_tolerance", "lift_height_m", "touch_speed"):
+            value = getattr(self, name)
+            _check(name, value, value > 0, "> 0")
+        _check("fine_tolerance_rad", self.fine_tolerance_rad,
+               self.fine_tolerance_rad <= self.shift_tolerance_rad,
+               "<= shift_tolerance_rad")
+        _check("lift_height_m", self.lift_height_m, self.lift_height_m <= 0.3, "<= 0.3 m")
+        _check("settle_steps", self.settle_steps, 1 <= self.settle_steps <= 100, "in [1, 100]")
+        _check("weigh_steps", self.weigh_steps, 1 <= self.weigh_steps <= 1000, "in [1, 1000]")
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels of the square pinhole retina."""
+        return (self.image_size / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)

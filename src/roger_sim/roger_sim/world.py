@@ -1,0 +1,233 @@
+"""World files: YAML descriptions of the objects around Roger (schema: docs/world-files.md).
+
+Every field is validated; any problem raises one
+:class:`roger_common.errors.WorldFileError` whose message names the file, the object and
+the field, e.g. ``worlds/x.yaml: objects[2] (obj03).size: must be > 0, got -0.3``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+from roger_common.errors import WorldFileError
+from roger_common.types import ObjectSpec, WorldSpec
+
+from roger_sim.robot import CONTROLLERS, REACH, shoulder_xy
+
+#: Shapes a world may use.
+SHAPES: tuple[str, ...] = ("box", "cylinder", "sphere", "prism")
+#: Surface textures a world may use.
+TEXTURES: tuple[str, ...] = ("plain", "stripes", "checker")
+#: Allowed range of ``size``, metres.
+SIZE_RANGE: tuple[float, float] = (0.05, 0.5)
+#: Allowed range of ``weight``, kg (the arms lift at most this much).
+WEIGHT_RANGE: tuple[float, float] = (0.01, 5.0)
+#: Objects must stand this far in front of Roger (x, metres) to be seen and worked on.
+MIN_X: float = 0.3
+#: Largest bearing of an object's centre from straight ahead, radians.
+MAX_BEARING: float = math.radians(75.0)
+#: Horizontal distance from the robot's origin beyond which objects are too far, metres.
+MAX_DISTANCE: float = 3.0
+
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+_OBJECT_FIELDS = ("name", "shape", "position", "yaw", "size", "intensity", "weight",
+                  "texture")
+_REQUIRED = ("name", "shape", "position", "size", "intensity", "weight")
+_WORLD_FIELDS = ("name", "light", "objects")
+
+
+def shape_height(shape: str, size: float) -> float:
+    """Height of an object of ``shape`` and ``size`` standing on the ground, metres."""
+    if shape == "prism":
+        return size * math.sqrt(3.0) / 2.0
+    return size
+
+
+def footprint_radius(shape: str, size: float) -> float:
+    """Radius of a circle around the object's footprint, whatever its yaw, metres."""
+    if shape in ("sphere", "cylinder"):
+        return size / 2.0
+    if shape == "prism":
+        return math.hypot(size / 2.0, size / 4.0)  # triangle side ``size``, depth size / 2
+    return size * math.sqrt(2.0) / 2.0
+
+
+def _number(source: str, where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise WorldFileError(source, where, f"must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise WorldFileError(source, where, f"must be finite, got {value!r}")
+    return float(value)
+
+
+def _in_range(source: str, where: str, value: Any, lo: float, hi: float,
+              unit: str = "") -> float:
+    x = _number(source, where, value)
+    if not lo <= x <= hi:
+        raise WorldFileError(source, where, f"must be in [{lo:g}, {hi:g}]{unit}, got {x:g}")
+    return x
+
+
+def _vector(source: str, where: str, value: Any, n: int) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise WorldFileError(source, where, f"must be a list of {n} numbers, got {value!r}")
+    return tuple(_number(source, f"{where}[{i}]", v) for i, v in enumerate(value))
+
+
+def object_from_dict(d: dict, source: str, where: str) -> ObjectSpec:
+    """Validate one object entry and build its :class:`ObjectSpec`.
+
+    Checks each field on its own (type, allowed values, ranges) and that the object
+    can be seen and reached; overlaps with other objects are checked by ``parse_world``.
+
+    Args:
+        d: The entry as loaded from YAML.
+        source: File name (or other origin) for error messages.
+        where: Where the entry is, e.g. ``"objects[2]"``.
+
+    Raises:
+        WorldFileError: Naming ``source``, ``where`` (with the object's name) and the field.
+    """
+    if not isinstance(d, dict):
+        raise WorldFileError(source, where, f"must be a mapping of fields, got {d!r}")
+    name = d.get("name")
+    label = f"{where} ({name})" if isinstance(name, str) and name else where
+    for key in d:
+        if key not in _OBJECT_FIELDS:
+            raise WorldFileError(source, f"{label}.{key}",
+                                 f"unknown field; allowed: {', '.join(_OBJECT_FIELDS)}")
+    for key in _REQUIRED:
+        if key not in d:
+            raise WorldFileError(source, f"{label}.{key}", "missing required field")
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise WorldFileError(source, f"{label}.name", "must be 1-64 letters, digits or _.- "
+                             f"without spaces, got {name!r}")
+    shape = d["shape"]
+    if shape not in SHAPES:
+        raise WorldFileError(source, f"{label}.shape",
+                             f"unknown shape {shape!r}; use one of {', '.join(SHAPES)}")
+    texture = d.get("texture", "plain")
+    if texture not in TEXTURES:
+        raise WorldFileError(source, f"{label}.texture",
+                             f"unknown texture {texture!r}; use one of {', '.join(TEXTURES)}")
+    x, y = _vector(source, f"{label}.position", d["position"], 2)
+    yaw = _in_range(source, f"{label}.yaw", d.get("yaw", 0.0), -2 * math.pi, 2 * math.pi,
+                    " rad")
+    size = _number(source, f"{label}.size", d["size"])
+    if size <= 0:
+        raise WorldFileError(source, f"{label}.size", f"must be > 0, got {size:g}")
+    size = _in_range(source, f"{label}.size", size, *SIZE_RANGE, " m")
+    intensity = _in_range(source, f"{label}.intensity", d["intensity"], 0, 255)
+    weight = _number(source, f"{label}.weight", d["weight"])
+    if weight <= 0:
+        raise WorldFileError(source, f"{label}.weight", f"must be > 0, got {weight:g}")
+    weight = _in_range(source, f"{label}.weight", weight, *WEIGHT_RANGE, " kg")
+    distance = math.hypot(x, y)
+    if x < MIN_X or abs(math.atan2(y, x)) > MAX_BEARING or distance > MAX_DISTANCE:
+        raise WorldFileError(source, f"{label}.position",
+                             f"({x:g}, {y:g}) is out of view: need x >= {MIN_X:g} m, a "
+                             f"bearing within {math.degrees(MAX_BEARING):g} deg and a "
+                             f"distance <= {MAX_DISTANCE:g} m")
+    reach = min(math.hypot(x - sx, y - sy)
+                for sx, sy in (shoulder_xy(arm) for arm in CONTROLLERS[3:]))
+    if reach > REACH:
+        raise WorldFileError(source, f"{label}.position",
+                             f"({x:g}, {y:g}) is out of reach: {reach:.2f} m from the nearest "
+                             f"shoulder, arms reach {REACH:g} m")
+    return ObjectSpec(name=name, shape=shape, position=(x, y), size=size,
+                      intensity=intensity, weight=weight, yaw=yaw, texture=texture)
+
+
+def check_overlap(objects: tuple[ObjectSpec, ...] | list[ObjectSpec], new: ObjectSpec,
+                  source: str, where: str) -> None:
+    """Raise when ``new`` has the name of, or overlaps, one of ``objects``."""
+    for other in objects:
+        if other.name == new.name:
+            raise WorldFileError(source, f"{where}.name", f"duplicate name {new.name!r}")
+        gap = math.dist(other.position, new.position)
+        need = footprint_radius(other.shape, other.size) + footprint_radius(new.shape, new.size)
+        if gap < need:
+            raise WorldFileError(source, f"{where}.position",
+                                 f"overlaps {other.name!r}: centres {gap:.3f} m apart, "
+                                 f"need >= {need:.3f} m")
+
+
+def parse_world(data: dict, source: str) -> WorldSpec:
+    """Validate a loaded world file and build its :class:`WorldSpec`.
+
+    Raises:
+        WorldFileError: On the first problem found (one line, naming the field).
+    """
+    if not isinstance(data, dict):
+        raise WorldFileError(source, "", "the file must be a YAML mapping with an 'objects' "
+                             f"list, got {type(data).__name__}")
+    for key in data:
+        if key not in _WORLD_FIELDS:
+            raise WorldFileError(source, str(key),
+                                 f"unknown field; allowed: {', '.join(_WORLD_FIELDS)}")
+    name = data.get("name", Path(source).stem or "world")
+    if not isinstance(name, str) or not name:
+        raise WorldFileError(source, "name", f"must be a non-empty string, got {name!r}")
+    light = data.get("light", {"direction": [1.0, 0.5, 1.0]})
+    if not isinstance(light, dict):
+        raise WorldFileError(source, "light", f"must be a mapping, got {light!r}")
+    for key in light:
+        if key != "direction":
+            raise WorldFileError(source, f"light.{key}", "unknown field; allowed: direction")
+    direction = _vector(source, "light.direction", light.get("direction", [1.0, 0.5, 1.0]), 3)
+    if math.hypot(*direction) < 1e-6:
+        raise WorldFileError(source, "light.direction", "must not be the zero vector")
+    if "objects" not in data:
+        raise WorldFileError(source, "objects", "missing required field")
+    raw = data["objects"]
+    if not isinstance(raw, list):
+        raise WorldFileError(source, "objects", f"must be a list, got {raw!r}")
+    if not raw:
+        raise WorldFileError(source, "objects", "the world is empty; list at least one object")
+    objects: list[ObjectSpec] = []
+    for i, entry in enumerate(raw):
+        spec = object_from_dict(entry, source, f"objects[{i}]")
+        check_overlap(objects, spec, source, f"objects[{i}] ({spec.name})")
+        objects.append(spec)
+    return WorldSpec(objects=tuple(objects), name=name, light_direction=direction,
+                     source=source)
+
+
+def load_world(path: str | Path) -> WorldSpec:
+    """Read and validate a world file.
+
+    Raises:
+        WorldFileError: The file is missing, unreadable, not YAML or not a valid world.
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise WorldFileError(source, "", f"cannot read the file: {exc.strerror or exc}")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise WorldFileError(source, where, f"YAML syntax error: {problem}") from None
+    return parse_world(data, source)
+
+
+def world_to_dict(world: WorldSpec) -> dict:
+    """The world as a plain dict in the file schema (``parse_world`` reads it back)."""
+    return {
+        "name": world.name,
+        "light": {"direction": [float(c) for c in world.light_direction]},
+        "objects": [
+            {"name": o.name, "shape": o.shape,
+             "position": [float(o.position[0]), float(o.position[1])],
+             "yaw": float(o.yaw), "size": float(o.size), "intensity": float(o.intensity),
+             "weight": float(o.weight), "texture": o.texture}
+            for o in world.objects
+        ],
+    }
