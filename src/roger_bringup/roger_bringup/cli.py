@@ -11,6 +11,8 @@ from roger_common.errors import RogerError
 
 #: Default world of the demo.
 DEFAULT_WORLD = Path("worlds/table1.yaml")
+#: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
+DEMO_WORLD = Path("worlds/two_rows.yaml")
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -60,21 +62,36 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    """``roger demo``: the main job of ``make demo``."""
-    from roger_bringup.run import RunOptions, run_graph
-    rows = []
-    for policy in ("straightforward", "qlearning"):
-        out = args.out / policy
-        metrics = run_graph(RunOptions(world=args.world, out=out, policy=policy,
-                                       cycles=args.cycles, seed=args.seed))
-        rows.append(metrics)
-    keys = ("attention_shifts", "improvements", "positive_identifications", "new_objects",
-            "map_updates", "objects_visited", "objects_in_world")
-    print("\npolicy           " + " ".join(f"{k[:12]:>12}" for k in keys))
-    for m in rows:
-        print(f"{m['policy']:<16} " + " ".join(f"{m[k]:>12}" for k in keys))
-    print(f"\noutputs (cycles.csv, metrics.json, node logs) under {args.out}")
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6."""
+    from roger_bringup.compare import compare
+
+    seeds = list(range(args.seed0, args.seed0 + args.seeds))
+    if args.in_process:
+        from roger_bringup.core_loop import run_core
+        from roger_sim.world import load_world
+        world = load_world(args.world)
+
+        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+            import time
+            t0 = time.monotonic()
+            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir)
+            assert recorder is not None
+            return recorder.close(time.monotonic() - t0)
+    else:
+        from roger_bringup.run import RunOptions, run_graph
+
+        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+            return run_graph(RunOptions(world=args.world, out=run_dir, policy=policy,
+                                        cycles=args.cycles, seed=seed,
+                                        progress=not args.quiet))
+    result = compare(args.world, args.cycles, seeds, args.out, run_one)
+    print()
+    print((args.out / "table2.md").read_text())
+    for c in result["claims"]:
+        print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
+    print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
+          f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
     return 0
 
 
@@ -85,12 +102,21 @@ def main(argv: list[str] | None = None) -> None:
     p_run = sub.add_parser("run", help="run the multi-process graph once")
     _add_run_args(p_run)
     p_run.set_defaults(func=cmd_run)
-    p_demo = sub.add_parser("demo", help="both policies on the default world (make demo)")
-    p_demo.add_argument("--world", type=Path, default=DEFAULT_WORLD)
-    p_demo.add_argument("--cycles", type=int, default=60)
-    p_demo.add_argument("--seed", type=int, default=0)
-    p_demo.add_argument("--out", type=Path, default=Path("runs/demo"))
-    p_demo.set_defaults(func=cmd_demo)
+    for name, help_text, world, cycles, seeds, out in (
+            ("compare", "both policies on the same world and seeds: Table 2, Figures 4-6",
+             DEFAULT_WORLD, 204, 3, Path("runs/compare")),
+            ("demo", "the main job of make demo: roger compare on the default world",
+             DEMO_WORLD, 204, 3, Path("runs/demo"))):
+        p_cmp = sub.add_parser(name, help=help_text)
+        p_cmp.add_argument("--world", type=Path, default=world, help="world file (YAML)")
+        p_cmp.add_argument("--cycles", type=int, default=cycles, help="control cycles per run")
+        p_cmp.add_argument("--seeds", type=int, default=seeds, help="number of seeds")
+        p_cmp.add_argument("--seed0", type=int, default=0, help="first seed")
+        p_cmp.add_argument("--out", type=Path, default=out, help="output folder")
+        p_cmp.add_argument("--in-process", action="store_true",
+                           help="run the same core loop without ROS (faster, no graph)")
+        p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
+        p_cmp.set_defaults(func=cmd_compare)
     args = parser.parse_args(argv)
     from roger_bringup.orchestrator import StopRequested
     try:
