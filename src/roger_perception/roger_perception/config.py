@@ -1,0 +1,162 @@
+"""Configuration of the perception core: one frozen dataclass, validated on construction.
+
+Every field is documented in docs/perception.md, with the reason for its default.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from roger_common.errors import ConfigError
+
+
+def _fail(name: str, value: object, need: str) -> ConfigError:
+    return ConfigError(f"PerceptionConfig.{name}={value!r}: {need}")
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """Parameters of the visual buffer, the ROIs, the features and the activation.
+
+    Attributes:
+        log_sigmas: Gaussian sigmas (pixels) of the LoG at the resolutions k = 1, 2, 3,
+            strictly increasing.
+        kernel_radius_sigmas: Kernel half-width in sigmas; the kernel diameter of
+            resolution k is ``2 * ceil(kernel_radius_sigmas * sigma_k) + 1`` pixels.
+        samples_m: M, the number of samples per ROI and resolution (equations 1-3),
+            independent of the ROI's size.
+        contrast_max: Edge contrast against the ground that makes I^(k) reach 1: G_max^(k)
+            is the peak response of kernel k to a straight edge of this contrast.
+        vicinity_sigmas: Radius, in sigmas of resolution k (at least 1 px), of the
+            neighbourhood in which a sample takes the largest LoG magnitude.
+        s_max_m: s_max of equation 3, metres: the largest depth relief within a ROI. Each
+            sample's disparity relative to the ROI's is turned into depth relief with the
+            stereo geometry, so that S does not fall with distance as 1 / Z^4.
+        stereo_search_px: The correlation tries shifts of -n..n pixels along the
+            epipolar line around the disparity of the ROI's centroids.
+        match_window_sigmas: Half-size, in sigmas of resolution k (at least 1 px), of the
+            correlation window used to measure disparity.
+        stereo_smoothness: Weight of the prior that pulls an ambiguous disparity to the
+            ROI's mean disparity (cost += smoothness * t^2 * local energy).
+        d_max_m: D_max of equation 4, metres.
+        w_max_kg: W_max of equation 5, the heaviest weight an arm can lift, kilograms.
+        haptic_radius_m: A haptic reading belongs to a ROI whose position lies within this
+            distance of the contact point.
+        mapped_radius_m: A ROI is mapped when a mapped position lies within this distance.
+        fg_threshold: Retinal intensity above the background level that is an object.
+        min_roi_pixels: Smaller connected regions are noise, not ROIs.
+        border_margin_px: When > 0, ROIs that come within this many pixels of the image
+            edge in either retina are dropped (their position and size are biased by the
+            cut); 0 keeps them, so that objects at the periphery can attract attention.
+        epipolar_tol_px: Largest distance of a right ROI's centroid from the left one's
+            epipolar line for the two to be matched.
+        max_ray_gap_m: Largest miss distance of the two triangulated rays.
+        max_area_ratio: Largest ratio of the areas of two matched ROIs.
+        max_intensity_diff: Largest difference of mean intensity of two matched ROIs.
+        size_norm: Retinal share (of the image area) at which the size term saturates.
+        motion_norm_m: Displacement since the previous frame that makes the motion term 1.
+        motion_deadband_m: Displacement regarded as triangulation jitter, not motion.
+        weight_size, weight_intensity, weight_motion, weight_tactile, weight_unmapped:
+            Weights of the pre-attentive activation terms (non-negative, not all zero).
+    """
+
+    log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
+    kernel_radius_sigmas: float = 3.0
+    samples_m: int = 32
+    contrast_max: float = 0.5
+    vicinity_sigmas: float = 1.0
+    s_max_m: float = 0.1
+    stereo_search_px: int = 3
+    match_window_sigmas: float = 2.0
+    stereo_smoothness: float = 0.02
+    d_max_m: float = 0.35
+    w_max_kg: float = 2.0
+    haptic_radius_m: float = 0.08
+    mapped_radius_m: float = 0.08
+    fg_threshold: float = 0.06
+    min_roi_pixels: int = 12
+    border_margin_px: int = 0
+    epipolar_tol_px: float = 4.0
+    max_ray_gap_m: float = 0.05
+    max_area_ratio: float = 2.5
+    max_intensity_diff: float = 0.15
+    size_norm: float = 0.05
+    motion_norm_m: float = 0.05
+    motion_deadband_m: float = 0.01
+    weight_size: float = 1.0
+    weight_intensity: float = 1.0
+    weight_motion: float = 1.0
+    weight_tactile: float = 1.0
+    weight_unmapped: float = 2.0
+
+    def __post_init__(self) -> None:
+        sig = tuple(self.log_sigmas)
+        if len(sig) != 3 or not all(_finite(s) and s > 0 for s in sig):
+            raise _fail("log_sigmas", self.log_sigmas, "need three positive sigmas (pixels)")
+        if not (sig[0] < sig[1] < sig[2]):
+            raise _fail("log_sigmas", self.log_sigmas, "need strictly increasing sigmas")
+        object.__setattr__(self, "log_sigmas", tuple(float(s) for s in sig))
+        if not isinstance(self.samples_m, int) or self.samples_m < 2:
+            raise _fail("samples_m", self.samples_m, "need an integer >= 2")
+        if not isinstance(self.stereo_search_px, int) or self.stereo_search_px < 1:
+            raise _fail("stereo_search_px", self.stereo_search_px, "need an integer >= 1")
+        if not isinstance(self.border_margin_px, int) or self.border_margin_px < 0:
+            raise _fail("border_margin_px", self.border_margin_px, "need an integer >= 0")
+        if not isinstance(self.min_roi_pixels, int) or self.min_roi_pixels < 1:
+            raise _fail("min_roi_pixels", self.min_roi_pixels, "need an integer >= 1")
+        positive = (
+            "kernel_radius_sigmas", "contrast_max", "vicinity_sigmas", "s_max_m",
+            "match_window_sigmas", "d_max_m", "w_max_kg", "haptic_radius_m", "mapped_radius_m",
+            "fg_threshold", "epipolar_tol_px", "max_ray_gap_m", "max_intensity_diff",
+            "size_norm", "motion_norm_m",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not _finite(value) or value <= 0:
+                raise _fail(name, value, "need a finite number > 0")
+        if self.kernel_radius_sigmas < 2.0:
+            raise _fail("kernel_radius_sigmas", self.kernel_radius_sigmas,
+                        "need >= 2 so that the kernel holds its negative ring")
+        if self.max_area_ratio < 1.0 or not _finite(self.max_area_ratio):
+            raise _fail("max_area_ratio", self.max_area_ratio, "need a finite number >= 1")
+        if self.fg_threshold >= 1.0:
+            raise _fail("fg_threshold", self.fg_threshold, "need < 1 (images are in [0, 1])")
+        non_negative = ("stereo_smoothness", "motion_deadband_m", *self.weight_names())
+        for name in non_negative:
+            value = getattr(self, name)
+            if not _finite(value) or value < 0:
+                raise _fail(name, value, "need a finite number >= 0")
+        if sum(self.activation_weights()) <= 0:
+            raise _fail("weight_unmapped", self.weight_unmapped,
+                        "the activation weights must not all be zero")
+
+    @staticmethod
+    def weight_names() -> tuple[str, ...]:
+        """Names of the activation weight fields, in the order of activation_weights()."""
+        return ("weight_size", "weight_intensity", "weight_motion", "weight_tactile",
+                "weight_unmapped")
+
+    def activation_weights(self) -> tuple[float, ...]:
+        """Weights of (size, intensity, motion, tactile, unmapped)."""
+        return tuple(float(getattr(self, n)) for n in self.weight_names())
+
+    def kernel_sizes(self) -> tuple[int, int, int]:
+        """LoG kernel diameters (pixels, odd) of the resolutions k = 1, 2, 3."""
+        s1, s2, s3 = (kernel_size(s, self.kernel_radius_sigmas) for s in self.log_sigmas)
+        return s1, s2, s3
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """All field names (for generating ROS parameters)."""
+        return tuple(f.name for f in fields(cls))
+
+
+def kernel_size(sigma: float, radius_sigmas: float = 3.0) -> int:
+    """Odd kernel diameter that holds ``radius_sigmas`` sigmas on each side of the centre."""
+    return 2 * math.ceil(radius_sigmas * sigma) + 1
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(
+        value)

@@ -1,0 +1,72 @@
+"""Haptic readings kept by position, so that later frames of the same object carry W.
+
+A haptic improvement happens once per object, but the weight feature must stay known in
+every later frame that shows the object. Readings are stored by contact point (robot
+frame); a ROI takes the weight of the nearest reading within ``radius`` of its position.
+A new reading within ``radius`` of an old one replaces it (the object was re-weighed).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from roger_common.types import HapticReading
+
+
+class HapticMemory:
+    """Weights measured by the arms, indexed by contact position.
+
+    Args:
+        radius: Distance (metres) within which a reading belongs to a position.
+    """
+
+    def __init__(self, radius: float) -> None:
+        self.radius = float(radius)
+        self._positions: list[np.ndarray] = []
+        self._weights: list[float] = []
+
+    def __len__(self) -> int:
+        return len(self._weights)
+
+    def add(self, reading: HapticReading) -> bool:
+        """Store a reading; returns False (and stores nothing) without a valid contact."""
+        if not reading.contact or not math.isfinite(reading.weight) or reading.weight < 0:
+            return False
+        pos = np.asarray(reading.position, float)
+        if not np.all(np.isfinite(pos)):
+            return False
+        i = self._nearest(pos)
+        if i is not None:
+            self._positions[i] = pos
+            self._weights[i] = float(reading.weight)
+        else:
+            self._positions.append(pos)
+            self._weights.append(float(reading.weight))
+        return True
+
+    def weight_near(self, position: Sequence[float]) -> float | None:
+        """Weight (kg) of the nearest reading within the radius, or None."""
+        i = self._nearest(np.asarray(position, float))
+        return None if i is None else self._weights[i]
+
+    def clear(self) -> None:
+        """Forget every reading."""
+        self._positions.clear()
+        self._weights.clear()
+
+    def _nearest(self, pos: np.ndarray) -> int | None:
+        if not self._positions:
+            return None
+        d = np.linalg.norm(np.stack(self._positions) - pos, axis=1)
+        i = int(np.argmin(d))
+        return i if d[i] <= self.radius else None
+
+
+def touches(reading: HapticReading | None, position: Sequence[float], radius: float) -> bool:
+    """True when ``reading`` is a contact within ``radius`` of ``position``."""
+    if reading is None or not reading.contact:
+        return False
+    d = np.linalg.norm(np.asarray(reading.position, float) - np.asarray(position, float))
+    return bool(d <= radius)

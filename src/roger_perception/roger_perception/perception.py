@@ -1,0 +1,195 @@
+"""Perception: stereo frame in, regions of interest with features and activation out.
+
+One call of ``Perception.process`` per stereo pair:
+
+1. visual buffer: LoG of both retinas at the three resolutions (log_filter);
+2. ROIs of each retina (segmentation), paired across the retinas and triangulated into
+   the robot frame with the frame's eye poses (stereo);
+3. features of each paired ROI, equations 1-5 (features; W from HapticMemory);
+4. pre-attentive activation of each ROI (activation).
+
+State kept between frames: haptic readings by position (so later frames carry W), the
+previous frame's ROI positions and left-eye view (for visual motion), and the last
+visual buffer (for viewers).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from roger_common.errors import MessageError
+from roger_common.geometry import project_point
+from roger_common.types import CameraModel, EyePose, Roi, StereoFrame
+
+from roger_perception.activation import is_mapped, motion_term, pre_attentive_activation
+from roger_perception.config import PerceptionConfig
+from roger_perception.features import (
+    assemble,
+    g_max,
+    intensity_texture,
+    sample_at,
+    size_feature,
+    stereo_feature,
+    vicinity_magnitude,
+    vicinity_radius,
+    weight_feature,
+)
+from roger_perception.haptic import HapticMemory, touches
+from roger_perception.log_filter import log_pyramid
+from roger_perception.segmentation import contour_samples, segment_retina
+from roger_perception.stereo import (
+    fundamental_matrix,
+    match_blobs,
+    relative_disparities,
+    relief_per_pixel,
+)
+
+#: Names of the stages timed in ``Perception.last_timings``.
+STAGES: tuple[str, ...] = ("log", "segment", "match", "features", "activation")
+
+
+class Perception:
+    """The perceptual buffer of section 2: visual buffer, ROIs, features, activation.
+
+    Args:
+        config: Parameters; validated on construction of the config.
+        seed: Kept for interface symmetry; the perception core is deterministic (no
+            random sampling), so the same frame always gives the same ROIs.
+    """
+
+    def __init__(self, config: PerceptionConfig | None = None, seed: int = 0) -> None:
+        self.config = PerceptionConfig() if config is None else config
+        self.seed = int(seed)
+        self._gmax = g_max(self.config)
+        self._vicinity = [vicinity_radius(s, self.config) for s in self.config.log_sigmas]
+        self._half_windows = [max(1, round(self.config.match_window_sigmas * s))
+                              for s in self.config.log_sigmas]
+        self.haptic_memory = HapticMemory(self.config.haptic_radius_m)
+        self._previous_positions: list[tuple[float, float, float]] = []
+        self._previous_view: tuple[CameraModel, EyePose] | None = None
+        self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
+        self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
+
+    @property
+    def g_max(self) -> tuple[float, ...]:
+        """G_max^(k) of equations 1-2 for k = 1, 2, 3."""
+        return tuple(self._gmax)
+
+    @property
+    def last_log(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Left and right LoG responses (k = 1, 2, 3) of the last frame, for viewers."""
+        return self._last_log
+
+    def reset(self) -> None:
+        """Forget haptic readings, the previous frame and the last visual buffer."""
+        self.haptic_memory.clear()
+        self._previous_positions = []
+        self._previous_view = None
+        self._last_log = ([], [])
+        self.last_timings = dict.fromkeys(STAGES, 0.0)
+
+    def process(self, frame: StereoFrame,
+                mapped_positions: Sequence[tuple[float, float, float]] = ()) -> list[Roi]:
+        """Turn one stereo pair into ROIs.
+
+        Args:
+            frame: The stereo pair with its camera model and eye poses.
+            mapped_positions: Robot-frame positions already in the spatial map; a ROI
+                within ``mapped_radius_m`` of one is mapped.
+
+        Returns:
+            One Roi per object seen by both eyes, ids 0..n-1 in left-retina raster order.
+
+        Raises:
+            MessageError: When the images do not match the camera model.
+        """
+        cfg = self.config
+        _check_frame(frame)
+        timings = dict.fromkeys(STAGES, 0.0)
+        t0 = time.perf_counter()
+        left_log = log_pyramid(frame.left, cfg)
+        right_log = log_pyramid(frame.right, cfg)
+        t1 = time.perf_counter()
+        timings["log"] = t1 - t0
+        _, left_blobs = segment_retina(frame.left, cfg)
+        _, right_blobs = segment_retina(frame.right, cfg)
+        t2 = time.perf_counter()
+        timings["segment"] = t2 - t1
+        matches = match_blobs(left_blobs, right_blobs, frame.camera, frame.left_pose,
+                              frame.right_pose, cfg)
+        if cfg.border_margin_px > 0:
+            size = (frame.camera.width, frame.camera.height)
+            matches = [m for m in matches
+                       if not _near_border(left_blobs[m.left].bbox, size, cfg.border_margin_px)
+                       and not _near_border(right_blobs[m.right].bbox, size,
+                                            cfg.border_margin_px)]
+        f = fundamental_matrix(frame.camera, frame.left_pose, frame.right_pose)
+        t3 = time.perf_counter()
+        timings["match"] = t3 - t2
+        if frame.haptic is not None:
+            self.haptic_memory.add(frame.haptic)
+        vicinity = np.stack([vicinity_magnitude(g, r)
+                             for g, r in zip(left_log, self._vicinity, strict=True)])
+        gmax = np.asarray(self._gmax)
+        image_area = float(frame.camera.width * frame.camera.height)
+        rois: list[Roi] = []
+        for roi_id, m in enumerate(matches):
+            ta = time.perf_counter()
+            bl, br = left_blobs[m.left], right_blobs[m.right]
+            points = contour_samples(bl, cfg.samples_m)
+            intensity, texture = intensity_texture(sample_at(vicinity, points), gmax)  # 1-2
+            depth_l = project_point(frame.camera, frame.left_pose, m.position)[2]
+            depth_r = project_point(frame.camera, frame.right_pose, m.position)[2]
+            disparities = relative_disparities(left_log, right_log, bl.centroid, br.centroid,
+                                               f, points, self._half_windows, cfg.stereo_search_px,
+                                               cfg.stereo_smoothness, depth_l / depth_r)
+            metres_per_px = relief_per_pixel(frame.camera, frame.left_pose, frame.right_pose,
+                                             m.position)
+            relief = disparities * (metres_per_px if math.isfinite(metres_per_px) else 0.0)
+            stereo = stereo_feature(relief, cfg.s_max_m)  # eq. 3
+            size_m = 0.5 * (bl.width_px * depth_l + br.width_px * depth_r) / frame.camera.focal_px
+            weight_kg = self.haptic_memory.weight_near(m.position)
+            weight = None if weight_kg is None else weight_feature(weight_kg, cfg.w_max_kg)
+            feats, known = assemble(intensity, texture, stereo,
+                                    size_feature(size_m, cfg.d_max_m), weight)  # eqs. 4-5
+            tb = time.perf_counter()
+            retinal_size = bl.area / image_area
+            motion = motion_term(m.position, self._previous_positions, self._previous_view,
+                                 cfg)
+            tactile = 1.0 if touches(frame.haptic, m.position, cfg.haptic_radius_m) else 0.0
+            mapped = is_mapped(m.position, mapped_positions, cfg.mapped_radius_m)
+            activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
+                                                  tactile, mapped, cfg)
+            rois.append(Roi(
+                roi_id=roi_id, bbox=bl.bbox, position=m.position, features=feats,
+                known=known, activation=activation, retinal_size=retinal_size,
+                mean_intensity=bl.mean_intensity, motion=motion, tactile=tactile,
+                mapped=mapped,
+            ))
+            tc = time.perf_counter()
+            timings["features"] += tb - ta
+            timings["activation"] += tc - tb
+        self._previous_positions = [r.position for r in rois]
+        self._previous_view = (frame.camera, frame.left_pose)
+        self._last_log = (left_log, right_log)
+        self.last_timings = timings
+        return rois
+
+
+def _check_frame(frame: StereoFrame) -> None:
+    shape = (frame.camera.height, frame.camera.width)
+    for name in ("left", "right"):
+        img = getattr(frame, name)
+        if not isinstance(img, np.ndarray) or img.shape != shape:
+            got = getattr(img, "shape", type(img).__name__)
+            raise MessageError(f"StereoFrame.{name}: shape {got}, camera says {shape}")
+        if not np.isfinite(img).all():
+            raise MessageError(f"StereoFrame.{name}: holds NaN or infinite pixels")
+
+
+def _near_border(bbox: tuple[int, int, int, int], size: tuple[int, int], margin: int) -> bool:
+    u0, v0, u1, v1 = bbox
+    return u0 < margin or v0 < margin or u1 > size[0] - margin or v1 > size[1] - margin

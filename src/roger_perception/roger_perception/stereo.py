@@ -1,0 +1,241 @@
+"""Stereo: match ROIs between the retinas, triangulate them, measure disparities.
+
+The eyes verge, so the retinas are not rectified. Everything here works with the
+fundamental matrix F built from the two eye poses (``q^T F p = 0`` for a left pixel p and
+its right match q, homogeneous, pixel centres at +0.5 as in roger_common.geometry).
+
+Disparity (section 3.1: "the correlation between pairs of pixels, one in the filter
+response of each retina") is measured per ROI and resolution in a small local
+rectification: both LoG responses are resampled in a patch whose x axis runs along the
+epipolar line through the ROI's centroid; the right patch is centred on the matched right
+centroid. A sample's disparity is then the x shift that minimises the sum of squared
+differences of the responses in a window, relative to the disparity of the centroids.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from roger_common.geometry import camera_ray, project_point, triangulate
+from roger_common.types import CameraModel, EyePose
+
+from roger_perception.config import PerceptionConfig
+from roger_perception.segmentation import Blob
+
+
+@dataclass(frozen=True)
+class StereoMatch:
+    """A ROI of the left retina with its partner in the right one.
+
+    Attributes:
+        left: Index into the left blobs.
+        right: Index into the right blobs.
+        position: Triangulated centroid, robot frame, metres.
+        gap: Miss distance of the two rays, metres.
+        cost: Matching cost (lower is better).
+    """
+
+    left: int
+    right: int
+    position: tuple[float, float, float]
+    gap: float
+    cost: float
+
+
+def intrinsics(camera: CameraModel) -> np.ndarray:
+    """3x3 pinhole matrix K of a retina (principal point at the image centre)."""
+    return np.array([[camera.focal_px, 0.0, camera.width / 2.0],
+                     [0.0, camera.focal_px, camera.height / 2.0],
+                     [0.0, 0.0, 1.0]])
+
+
+def fundamental_matrix(camera: CameraModel, left_pose: EyePose, right_pose: EyePose
+                       ) -> np.ndarray:
+    """F with ``q^T F p = 0`` for a left pixel p and the right pixel q of the same point."""
+    r_rl = right_pose.rotation.T @ left_pose.rotation
+    t = right_pose.rotation.T @ (np.asarray(left_pose.position, float)
+                                 - np.asarray(right_pose.position, float))
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    k_inv = np.linalg.inv(intrinsics(camera))
+    return k_inv.T @ (tx @ r_rl) @ k_inv
+
+
+def epipolar_distance(f: np.ndarray, p_left: Sequence[float], q_right: Sequence[float]
+                      ) -> float:
+    """Distance (pixels) of the right pixel q from the epipolar line of the left pixel p."""
+    line = f @ np.array([p_left[0], p_left[1], 1.0])
+    norm = math.hypot(line[0], line[1])
+    if norm < 1e-12:
+        return float("inf")
+    return abs(line[0] * q_right[0] + line[1] * q_right[1] + line[2]) / norm
+
+
+def triangulate_pixels(camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
+                       p_left: Sequence[float], q_right: Sequence[float]
+                       ) -> tuple[np.ndarray, float]:
+    """Robot-frame point seen at left pixel p and right pixel q, and the rays' miss distance."""
+    return triangulate(
+        np.asarray(left_pose.position, float), camera_ray(camera, left_pose, *p_left),
+        np.asarray(right_pose.position, float), camera_ray(camera, right_pose, *q_right),
+    )
+
+
+def match_blobs(left: Sequence[Blob], right: Sequence[Blob], camera: CameraModel,
+                left_pose: EyePose, right_pose: EyePose, cfg: PerceptionConfig
+                ) -> list[StereoMatch]:
+    """Pair the ROIs of the two retinas, one to one, and triangulate each pair.
+
+    A pair is admissible when the right centroid lies within ``epipolar_tol_px`` of the
+    left centroid's epipolar line, the areas differ by at most ``max_area_ratio``, the mean
+    intensities by at most ``max_intensity_diff``, and the rays meet (gap below
+    ``max_ray_gap_m``) in front of both eyes. Admissible pairs are taken greedily by cost
+    (sum of the three normalised differences). Left ROIs without a partner are dropped.
+
+    Returns:
+        The matches, sorted by left index.
+    """
+    f = fundamental_matrix(camera, left_pose, right_pose)
+    candidates: list[StereoMatch] = []
+    log_ratio_max = math.log(cfg.max_area_ratio) if cfg.max_area_ratio > 1 else 1e-9
+    for i, bl in enumerate(left):
+        for j, br in enumerate(right):
+            epi = epipolar_distance(f, bl.centroid, br.centroid)
+            ratio = abs(math.log(bl.area / br.area))
+            dint = abs(bl.mean_intensity - br.mean_intensity)
+            if epi > cfg.epipolar_tol_px or ratio > log_ratio_max + 1e-12 or (
+                    dint > cfg.max_intensity_diff):
+                continue
+            point, gap = triangulate_pixels(camera, left_pose, right_pose, bl.centroid,
+                                            br.centroid)
+            if not np.all(np.isfinite(point)) or gap > cfg.max_ray_gap_m:
+                continue
+            if project_point(camera, left_pose, point)[2] <= 0 or project_point(
+                    camera, right_pose, point)[2] <= 0:
+                continue
+            cost = (epi / cfg.epipolar_tol_px + ratio / log_ratio_max
+                    + dint / cfg.max_intensity_diff)
+            candidates.append(StereoMatch(i, j, tuple(float(x) for x in point), gap, cost))
+    candidates.sort(key=lambda m: (m.cost, m.left, m.right))
+    used_l: set[int] = set()
+    used_r: set[int] = set()
+    out: list[StereoMatch] = []
+    for m in candidates:
+        if m.left in used_l or m.right in used_r:
+            continue
+        used_l.add(m.left)
+        used_r.add(m.right)
+        out.append(m)
+    return sorted(out, key=lambda m: m.left)
+
+
+def epipolar_direction(line: np.ndarray) -> np.ndarray:
+    """Unit direction of an image line (a, b, c), oriented towards +u."""
+    d = np.array([line[1], -line[0]], float)
+    n = float(np.hypot(*d))
+    if n < 1e-12:
+        return np.array([1.0, 0.0])
+    d /= n
+    return -d if d[0] < 0 else d
+
+
+def _patch(resp: np.ndarray, centre: Sequence[float], axis: np.ndarray, half: int,
+           extra_x: int = 0, scale: float = 1.0) -> np.ndarray:
+    """Resample ``resp`` in a patch centred on ``centre`` (u, v) whose x axis runs along
+    ``axis``, one patch pixel spanning ``scale`` image pixels: (2 half + 1) rows,
+    (2 (half + extra_x) + 1) columns; the centre lands on row ``half``, column
+    ``half + extra_x``."""
+    eu, ev = float(axis[0]) * scale, float(axis[1]) * scale
+    cu, cv = float(centre[0]) - 0.5, float(centre[1]) - 0.5  # to array index coordinates
+    hx = half + extra_x
+    warp = np.array([[eu, -ev, cu - eu * hx + ev * half],
+                     [ev, eu, cv - ev * hx - eu * half]])
+    return cv2.warpAffine(resp, warp, (2 * hx + 1, 2 * half + 1),
+                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def relative_disparities(left_resps: Sequence[np.ndarray], right_resps: Sequence[np.ndarray],
+                         c_left: Sequence[float], c_right: Sequence[float], f: np.ndarray,
+                         points: np.ndarray, half_windows: Sequence[int], search_px: int,
+                         smoothness: float, magnification: float = 1.0) -> np.ndarray:
+    """Disparity of each sample point relative to that of the ROI's centroids.
+
+    Args:
+        left_resps, right_resps: LoG responses, one (H, W) float32 array per resolution.
+        c_left, c_right: Matched centroids (u, v) of the ROI in each retina.
+        f: Fundamental matrix (left to right).
+        points: (M, 2) sample points (u, v) in the left retina.
+        half_windows: Correlation window half-size per resolution, pixels.
+        search_px: Shifts -search_px..search_px are tried along the epipolar line.
+        smoothness: Prior weight that pulls ambiguous samples to 0 (see config).
+        magnification: Size of the ROI in the right retina over its size in the left
+            (Z_left / Z_right, depths along each optical axis); the right patch is
+            resampled at this scale so that the eyes' different distances to the object
+            do not pass for relief.
+
+    Returns:
+        (K, M) float64 sub-pixel shifts along the epipolar line, one row per resolution,
+        in [-search_px, search_px].
+    """
+    e_left = epipolar_direction(f.T @ np.array([c_right[0], c_right[1], 1.0]))
+    e_right = epipolar_direction(f @ np.array([c_left[0], c_left[1], 1.0]))
+    rel = np.asarray(points, float) - np.asarray(c_left, float)
+    n_left = np.array([-e_left[1], e_left[0]])
+    dx, dy = rel @ e_left, rel @ n_left
+    hmax, r = int(max(half_windows)), int(search_px)
+    half = math.ceil(max(np.abs(dx).max(), np.abs(dy).max())) + hmax + 1
+    lp = np.stack([_patch(g, c_left, e_left, half) for g in left_resps])
+    rp = np.stack([_patch(g, c_right, e_right, half, r, magnification) for g in right_resps])
+    xi = np.rint(half + dx).astype(int)
+    yi = np.rint(half + dy).astype(int)
+    width = 2 * half + 1
+    shifts = np.arange(-r, r + 1)
+    # SSD(t) = sum_window (L(x, y) - R(x + t, y))^2 for every resolution and shift, summed
+    # over the window at the samples through one integral image.
+    shifted = np.stack([rp[:, :, r + t:r + t + width] for t in shifts], axis=1)
+    diff2 = np.concatenate([(lp[:, None] - shifted) ** 2, (lp * lp)[:, None]], axis=1)
+    ii = np.zeros(diff2.shape[:2] + (width + 1, width + 1))
+    ii[:, :, 1:, 1:] = diff2.cumsum(axis=2).cumsum(axis=3)
+    out = np.empty((len(left_resps), len(xi)))
+    cols = np.arange(len(xi))
+    for k, h in enumerate(half_windows):
+        y0, y1, x0, x1 = yi - h, yi + h + 1, xi - h, xi + h + 1
+        sums = ii[k, :, y1, x1] - ii[k, :, y0, x1] - ii[k, :, y1, x0] + ii[k, :, y0, x0]
+        ssd, energy = sums[:, :-1].T, sums[:, -1]
+        cost = ssd + smoothness * (shifts[:, None] ** 2) * (energy[None] + 1e-12)
+        best = np.argmin(cost, axis=0)
+        s = shifts[best].astype(float)
+        inner = (best > 0) & (best < len(shifts) - 1)
+        c0 = cost[best[inner], cols[inner]]
+        cm = cost[best[inner] - 1, cols[inner]]
+        cp = cost[best[inner] + 1, cols[inner]]
+        den = cm - 2.0 * c0 + cp
+        ok = den > 1e-18
+        s[inner] += np.clip(np.where(ok, 0.5 * (cm - cp) / np.where(ok, den, 1.0), 0.0),
+                            -0.5, 0.5)
+        out[k] = s
+    return out
+
+
+def relief_per_pixel(camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
+                     position: Sequence[float]) -> float:
+    """Depth change (metres) per pixel of disparity change at a robot-frame point.
+
+    From disparity = f b / Z: dZ = Z_left Z_right / (f b) per pixel, b being the baseline's
+    component perpendicular to the line of sight to the point. NaN when undefined.
+    """
+    p = np.asarray(position, float)
+    cl, cr = np.asarray(left_pose.position, float), np.asarray(right_pose.position, float)
+    sight = p - (cl + cr) / 2.0
+    sight /= np.linalg.norm(sight)
+    base = cl - cr
+    b_perp = float(np.linalg.norm(base - (base @ sight) * sight))
+    z_l = project_point(camera, left_pose, p)[2]
+    z_r = project_point(camera, right_pose, p)[2]
+    if b_perp < 1e-9 or z_l <= 0 or z_r <= 0:
+        return float("nan")
+    return z_l * z_r / (camera.focal_px * b_perp)

@@ -1,0 +1,173 @@
+"""Regions of interest: segmentation, positions, activation and state (Perception).
+
+That the core imports without ROS is checked elsewhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from perception_synth import CENTRE_GAZE, SPREAD, Shape, make_frame, nearest_object, table1_objects
+from roger_common.errors import MessageError
+from roger_common.types import HapticReading
+from roger_perception.config import PerceptionConfig
+from roger_perception.perception import Perception
+from roger_perception.segmentation import contour_samples, segment_retina
+
+
+def test_ground_alone_gives_no_roi() -> None:
+    assert Perception().process(make_frame([], seed=1)) == []
+    assert Perception().process(make_frame([], noise_std=0.03, seed=2)) == []
+
+
+def test_one_roi_per_object_with_bbox_on_it_and_position_near_its_centre() -> None:
+    objects = table1_objects("cylinder")
+    frame = make_frame(objects, gaze=CENTRE_GAZE, seed=3)
+    rois = Perception().process(frame)
+    assert [r.roi_id for r in rois] == list(range(4))
+    seen = set()
+    for r in rois:
+        i = nearest_object(r.position, objects)
+        seen.add(i)
+        u0, v0, u1, v1 = r.bbox
+        assert 0 <= u0 < u1 <= 128 and 0 <= v0 < v1 <= 128
+        labels = frame.left_labels[v0:v1, u0:u1]
+        assert np.mean(labels == i) > 0.5  # the box holds mostly that object
+        assert np.linalg.norm(np.asarray(r.position) - objects[i].centre) < 0.02
+        assert 0.0 < r.retinal_size < 0.05
+        albedo = objects[i].intensity / 255.0  # shaded by 0.6..1 in the synthetic renderer
+        assert 0.5 * albedo < r.mean_intensity < albedo
+    assert seen == {0, 1, 2, 3}
+
+
+def test_position_stays_put_when_the_eyes_move() -> None:
+    objects = table1_objects("cube")
+    perception = Perception()
+    positions = []
+    for gaze in (CENTRE_GAZE, (0.85, 0.2, 0.05), (0.95, -0.15, 0.0)):
+        perception.reset()
+        rois = perception.process(make_frame(objects, gaze=gaze, seed=5))
+        positions.append({nearest_object(r.position, objects): np.asarray(r.position)
+                          for r in rois})
+    common = set(positions[0]) & set(positions[1]) & set(positions[2])
+    assert len(common) >= 2
+    for i in common:
+        for p in positions[1:]:
+            assert np.linalg.norm(p[i] - positions[0][i]) < 0.015
+
+
+def test_small_regions_are_not_rois() -> None:
+    objects = [Shape("sphere", 0.9, 0.0, 0.1, 90.0)]
+    frame = make_frame(objects, seed=6)
+    assert len(Perception().process(frame)) == 1
+    area = int(segment_retina(frame.left, PerceptionConfig())[1][0].area)
+    strict = PerceptionConfig(min_roi_pixels=area + 1)
+    assert Perception(strict).process(frame) == []
+
+
+def test_border_margin_drops_cut_rois_only_when_asked() -> None:
+    objects = [Shape("cylinder", 0.85, y, 0.1, 90.0) for y in (0.0, 0.4)]
+    frame = make_frame(objects, gaze=(0.85, -0.05, 0.05), seed=7)
+    keep = Perception().process(frame)
+    drop = Perception(PerceptionConfig(border_margin_px=1)).process(frame)
+    assert len(keep) == 2 and len(drop) == 1
+    assert nearest_object(drop[0].position, objects) == 0
+
+
+def test_contour_samples_are_m_points_on_the_roi_boundary() -> None:
+    frame = make_frame([Shape("sphere", 0.9, 0.0, 0.12, 90.0)], noise_std=0.0)
+    blob = segment_retina(frame.left, PerceptionConfig())[1][0]
+    for m in (8, 32, 200):  # M does not depend on the ROI's size
+        pts = contour_samples(blob, m)
+        assert pts.shape == (m, 2)
+        u0, v0, u1, v1 = blob.bbox
+        assert np.all((pts[:, 0] > u0) & (pts[:, 0] < u1) & (pts[:, 1] > v0) & (pts[:, 1] < v1))
+        cols = np.floor(pts[:, 0]).astype(int) - u0
+        rows = np.floor(pts[:, 1]).astype(int) - v0
+        assert blob.mask[rows, cols].all()
+
+
+def test_mapping_status_and_its_effect_on_activation() -> None:
+    objects = table1_objects("cylinder")
+    frame = make_frame(objects, gaze=CENTRE_GAZE, seed=8)
+    free = Perception().process(frame)
+    mapped = Perception().process(frame, mapped_positions=[objects[1].centre])
+    assert not any(r.mapped for r in free)
+    for a, b in zip(free, mapped, strict=True):
+        i = nearest_object(a.position, objects)
+        assert b.mapped == (i == 1)
+        if i == 1:
+            assert b.activation < a.activation
+        else:
+            assert b.activation == pytest.approx(a.activation)
+
+
+def test_tactile_response_raises_the_touched_roi_activation() -> None:
+    objects = table1_objects("cylinder")
+    o = objects[2]
+    touch = HapticReading(arm=1, contact=True, position=(o.x - 0.05, o.y, 0.05), weight=1.0)
+    plain = Perception().process(make_frame(objects, gaze=CENTRE_GAZE, seed=9))
+    felt = Perception().process(make_frame(objects, gaze=CENTRE_GAZE, seed=9, haptic=touch))
+    for a, b in zip(plain, felt, strict=True):
+        touched = nearest_object(b.position, objects) == 2
+        assert b.tactile == (1.0 if touched else 0.0)
+        assert (b.activation > a.activation) if touched else (b.activation == a.activation)
+
+
+def test_visual_motion_flags_a_moved_object_not_the_still_ones() -> None:
+    objects = table1_objects("cylinder")
+    perception = Perception()
+    first = perception.process(make_frame(objects, gaze=CENTRE_GAZE, seed=10))
+    assert all(r.motion == 0.0 for r in first)  # no previous frame
+    still = perception.process(make_frame(objects, gaze=CENTRE_GAZE, seed=11))
+    assert all(r.motion < 0.2 for r in still)
+    moved = list(objects)
+    moved[3] = dataclasses.replace(objects[3], x=objects[3].x + 0.06)
+    after = perception.process(make_frame(moved, gaze=CENTRE_GAZE, seed=12))
+    for r in after:
+        if nearest_object(r.position, moved) == 3:
+            assert r.motion > 0.5
+        else:
+            assert r.motion < 0.2
+
+
+def test_activation_is_the_weighted_mean_of_its_terms() -> None:
+    objects = [Shape("cylinder", 0.9, 0.0, 0.1, 99.0)]
+    frame = make_frame(objects, seed=13)
+    only_size = PerceptionConfig(weight_size=1.0, weight_intensity=0.0, weight_motion=0.0,
+                                 weight_tactile=0.0, weight_unmapped=0.0, size_norm=0.05)
+    r = Perception(only_size).process(frame)[0]
+    assert r.activation == pytest.approx(min(1.0, r.retinal_size / 0.05))
+    only_intensity = dataclasses.replace(only_size, weight_size=0.0, weight_intensity=2.0)
+    r = Perception(only_intensity).process(frame)[0]
+    assert r.activation == pytest.approx(r.mean_intensity / only_intensity.contrast_max)
+    r = Perception().process(frame)[0]
+    assert 0.0 <= r.activation <= 1.0
+
+
+def test_last_log_reset_and_timings() -> None:
+    perception = Perception()
+    assert perception.last_log == ([], [])
+    objects = table1_objects("sphere", positions=SPREAD)
+    touch = HapticReading(arm=0, contact=True, position=objects[0].centre, weight=1.0)
+    perception.process(make_frame(objects, gaze=CENTRE_GAZE, haptic=touch))
+    left, right = perception.last_log
+    assert len(left) == len(right) == 3
+    assert all(g.shape == (128, 128) and g.dtype == np.float32 for g in left + right)
+    assert len(perception.haptic_memory) == 1
+    assert set(perception.last_timings) >= {"log", "segment", "match", "features"}
+    perception.reset()
+    assert perception.last_log == ([], []) and len(perception.haptic_memory) == 0
+
+
+def test_a_frame_that_does_not_fit_its_camera_is_rejected() -> None:
+    frame = make_frame([], seed=14)
+    bad = dataclasses.replace(frame, left=frame.left[:64])
+    with pytest.raises(MessageError, match="left"):
+        Perception().process(bad)
+    nan = frame.right.copy()
+    nan[3, 3] = np.nan
+    with pytest.raises(MessageError, match="right"):
+        Perception().process(dataclasses.replace(frame, right=nan))
