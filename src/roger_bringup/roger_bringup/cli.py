@@ -95,6 +95,37 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    """``roger train``: Q-learning over worlds and seeds; writes the Q-table and TD curve."""
+    import time
+
+    from roger_bringup.train import train
+
+    seeds = list(range(args.seed0, args.seed0 + args.seeds))
+    if args.graph:
+        from roger_bringup.run import RunOptions, run_graph
+
+        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
+            return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
+                                        cycles=args.cycles, seed=seed, qtable=qtable,
+                                        progress=not args.quiet))
+    else:
+        from roger_bringup.core_loop import run_core
+        from roger_sim.world import load_world
+
+        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
+            t0 = time.monotonic()
+            recorder, loop = run_core(load_world(world), "qlearning", args.cycles, seed=seed,
+                                      out=run_dir, qtable_path=qtable)
+            loop.policy_obj.save(qtable)
+            assert recorder is not None
+            return recorder.close(time.monotonic() - t0)
+    summary = train(args.worlds, seeds, args.cycles, args.out, run_one)
+    print(json.dumps(summary, indent=2))
+    print(f"Q-table: {args.out / 'qtable.json'}; TD curve: {args.out / 'td_errors.png'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``roger``."""
     parser = argparse.ArgumentParser(prog="roger", description=__doc__)
@@ -117,6 +148,18 @@ def main(argv: list[str] | None = None) -> None:
                            help="run the same core loop without ROS (faster, no graph)")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
+    p_train = sub.add_parser("train", help="train the Q-learning policy over worlds and seeds")
+    p_train.add_argument("--worlds", type=Path, nargs="+",
+                         default=[Path("worlds/table1.yaml"), Path("worlds/shapes.yaml")],
+                         help="world files to train on, in order")
+    p_train.add_argument("--seeds", type=int, default=2, help="seeds per world")
+    p_train.add_argument("--seed0", type=int, default=0, help="first seed")
+    p_train.add_argument("--cycles", type=int, default=204, help="control cycles per run")
+    p_train.add_argument("--out", type=Path, default=Path("runs/train"), help="output folder")
+    p_train.add_argument("--graph", action="store_true",
+                         help="train through the multi-process graph instead of in process")
+    p_train.add_argument("--quiet", action="store_true", help="no progress bars")
+    p_train.set_defaults(func=cmd_train)
     args = parser.parse_args(argv)
     from roger_bringup.orchestrator import StopRequested
     try:
