@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+import torch
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rcl_interfaces.msg import ParameterDescriptor
@@ -59,7 +60,11 @@ class MemoryNode(Node):
         except MessageError as exc:
             self.get_logger().error(f"memory request refused: {exc}")
             return
-        result = self.memory.handle(req)
+        try:
+            result = self.memory.handle(req)
+        except MessageError as exc:
+            self.get_logger().error(f"memory request {req.request_id} refused: {exc}")
+            return
         reply = conv.result_to_msg(req.request_id, req.op, result, self.memory.size, stamp)
         if req.op == MemoryOp.STORE:
             if self.path is not None:
@@ -72,6 +77,8 @@ class MemoryNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``roger-memory``."""
+    # One torch thread: the node is single-threaded and shares two cores with the others.
+    torch.set_num_threads(1)
     rclpy.init(args=args)
     node = None
     try:
