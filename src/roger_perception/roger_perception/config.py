@@ -45,6 +45,22 @@ class PerceptionConfig:
             distance of the contact point.
         mapped_radius_m: A ROI is mapped when a mapped position lies within this distance.
         fg_threshold: Retinal intensity above the background level that is an object.
+        grad_threshold: Intensity gradient (per pixel, after a 1 px Gaussian) below which
+            a foreground pixel is flat and may seed a watershed fragment; edges between
+            objects or faces are steeper.
+        sweep_near_m, sweep_far_m: Depth range (m, along the left optical axis) of the
+            plane sweep that measures the depth of fragments and ROIs.
+        sweep_step_px: Epipolar shift (pixels) between two depth hypotheses.
+        match_cost_trunc: Truncation of the per-pixel matching cost |L - R| (intensity).
+        occlusion_band_px: Pixels this close to another fragment (or ROI) are left out of
+            its depth estimate (occlusion changes them between the eyes).
+        min_depth_pixels: A fragment with fewer usable pixels has no reliable depth.
+        min_depth_rise: A fragment whose mean cost rises less than this two hypotheses
+            away from its minimum has no reliable depth (ambiguous match).
+        merge_distance_m: Touching fragments whose 3-D centres lie within this ground
+            distance are one object.
+        max_match_cost: A ROI whose best mean matching cost exceeds this is not seen by
+            the right eye (occluded or out of its view) and is dropped.
         min_roi_pixels: Smaller connected regions are noise, not ROIs.
         border_margin_px: When > 0, ROIs that come within this many pixels of the image
             edge in either retina are dropped (their position and size are biased by the
@@ -75,6 +91,16 @@ class PerceptionConfig:
     haptic_radius_m: float = 0.08
     mapped_radius_m: float = 0.08
     fg_threshold: float = 0.06
+    grad_threshold: float = 0.012
+    sweep_near_m: float = 0.4
+    sweep_far_m: float = 3.5
+    sweep_step_px: float = 1.0
+    match_cost_trunc: float = 0.08
+    occlusion_band_px: int = 3
+    min_depth_pixels: int = 10
+    min_depth_rise: float = 0.002
+    merge_distance_m: float = 0.22
+    max_match_cost: float = 0.04
     min_roi_pixels: int = 12
     border_margin_px: int = 0
     epipolar_tol_px: float = 4.0
@@ -103,13 +129,22 @@ class PerceptionConfig:
             raise _fail("stereo_search_px", self.stereo_search_px, "need an integer >= 1")
         if not isinstance(self.border_margin_px, int) or self.border_margin_px < 0:
             raise _fail("border_margin_px", self.border_margin_px, "need an integer >= 0")
+        for name in ("occlusion_band_px", "min_depth_pixels"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise _fail(name, value, "need an integer >= 0")
+        if not (_finite(self.sweep_near_m) and _finite(self.sweep_far_m)
+                and 0 < self.sweep_near_m < self.sweep_far_m):
+            raise _fail("sweep_far_m", self.sweep_far_m,
+                        f"need 0 < sweep_near_m ({self.sweep_near_m!r}) < sweep_far_m")
         if not isinstance(self.min_roi_pixels, int) or self.min_roi_pixels < 1:
             raise _fail("min_roi_pixels", self.min_roi_pixels, "need an integer >= 1")
         positive = (
             "kernel_radius_sigmas", "contrast_max", "vicinity_sigmas", "s_max_m",
             "match_window_sigmas", "d_max_m", "w_max_kg", "haptic_radius_m", "mapped_radius_m",
             "fg_threshold", "epipolar_tol_px", "max_ray_gap_m", "max_intensity_diff",
-            "size_norm", "motion_norm_m",
+            "size_norm", "motion_norm_m", "grad_threshold", "sweep_step_px",
+            "match_cost_trunc", "merge_distance_m", "max_match_cost",
         )
         for name in positive:
             value = getattr(self, name)
@@ -122,7 +157,8 @@ class PerceptionConfig:
             raise _fail("max_area_ratio", self.max_area_ratio, "need a finite number >= 1")
         if self.fg_threshold >= 1.0:
             raise _fail("fg_threshold", self.fg_threshold, "need < 1 (images are in [0, 1])")
-        non_negative = ("stereo_smoothness", "motion_deadband_m", *self.weight_names())
+        non_negative = ("stereo_smoothness", "motion_deadband_m", "min_depth_rise",
+                        *self.weight_names())
         for name in non_negative:
             value = getattr(self, name)
             if not _finite(value) or value < 0:

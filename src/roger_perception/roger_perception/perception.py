@@ -39,10 +39,10 @@ from roger_perception.features import (
 )
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
-from roger_perception.segmentation import contour_samples, segment_retina
+from roger_perception.roi_finder import find_objects
+from roger_perception.segmentation import contour_samples
 from roger_perception.stereo import (
     fundamental_matrix,
-    match_blobs,
     relative_disparities,
     relief_per_pixel,
 )
@@ -72,6 +72,9 @@ class Perception:
         self._previous_view: tuple[CameraModel, EyePose] | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
+        #: Left-retina ROI of every pixel of the last frame: 0 none, roi_id + 1 (viewers
+        #: draw the paper's thin lines between ROIs from it; tests score it).
+        self.last_roi_labels: np.ndarray = np.zeros((0, 0), np.int32)
 
     @property
     def g_max(self) -> tuple[float, ...]:
@@ -89,6 +92,7 @@ class Perception:
         self._previous_positions = []
         self._previous_view = None
         self._last_log = ([], [])
+        self.last_roi_labels = np.zeros((0, 0), np.int32)
         self.last_timings = dict.fromkeys(STAGES, 0.0)
 
     def process(self, frame: StereoFrame,
@@ -114,18 +118,12 @@ class Perception:
         right_log = log_pyramid(frame.right, cfg)
         t1 = time.perf_counter()
         timings["log"] = t1 - t0
-        _, left_blobs = segment_retina(frame.left, cfg)
-        _, right_blobs = segment_retina(frame.right, cfg)
+        seen, labels = find_objects(frame, cfg)  # eqs. of section 3: ROIs and stereo
         t2 = time.perf_counter()
         timings["segment"] = t2 - t1
-        matches = match_blobs(left_blobs, right_blobs, frame.camera, frame.left_pose,
-                              frame.right_pose, cfg)
         if cfg.border_margin_px > 0:
             size = (frame.camera.width, frame.camera.height)
-            matches = [m for m in matches
-                       if not _near_border(left_blobs[m.left].bbox, size, cfg.border_margin_px)
-                       and not _near_border(right_blobs[m.right].bbox, size,
-                                            cfg.border_margin_px)]
+            seen = [o for o in seen if not _near_border(o.blob.bbox, size, cfg.border_margin_px)]
         f = fundamental_matrix(frame.camera, frame.left_pose, frame.right_pose)
         t3 = time.perf_counter()
         timings["match"] = t3 - t2
@@ -136,35 +134,40 @@ class Perception:
         gmax = np.asarray(self._gmax)
         image_area = float(frame.camera.width * frame.camera.height)
         rois: list[Roi] = []
-        for roi_id, m in enumerate(matches):
+        roi_labels = np.zeros_like(labels)
+        for roi_id, obj in enumerate(seen):
+            u0, v0, u1, v1 = obj.blob.bbox
+            roi_labels[v0:v1, u0:u1][obj.blob.mask] = roi_id + 1
             ta = time.perf_counter()
-            bl, br = left_blobs[m.left], right_blobs[m.right]
+            bl = obj.blob
+            position = obj.position
             points = contour_samples(bl, cfg.samples_m)
             intensity, texture = intensity_texture(sample_at(vicinity, points), gmax)  # 1-2
-            depth_l = project_point(frame.camera, frame.left_pose, m.position)[2]
-            depth_r = project_point(frame.camera, frame.right_pose, m.position)[2]
-            disparities = relative_disparities(left_log, right_log, bl.centroid, br.centroid,
-                                               f, points, self._half_windows, cfg.stereo_search_px,
-                                               cfg.stereo_smoothness, depth_l / depth_r)
+            depth_l = project_point(frame.camera, frame.left_pose, position)[2]
+            depth_r = project_point(frame.camera, frame.right_pose, position)[2]
+            disparities = relative_disparities(left_log, right_log, bl.centroid,
+                                               obj.right_px, f, points, self._half_windows,
+                                               cfg.stereo_search_px, cfg.stereo_smoothness,
+                                               depth_l / depth_r)
             metres_per_px = relief_per_pixel(frame.camera, frame.left_pose, frame.right_pose,
-                                             m.position)
+                                             position)
             relief = disparities * (metres_per_px if math.isfinite(metres_per_px) else 0.0)
             stereo = stereo_feature(relief, cfg.s_max_m)  # eq. 3
-            size_m = 0.5 * (bl.width_px * depth_l + br.width_px * depth_r) / frame.camera.focal_px
-            weight_kg = self.haptic_memory.weight_near(m.position)
+            size_m = obj.width_px * obj.depth / frame.camera.focal_px
+            weight_kg = self.haptic_memory.weight_near(position)
             weight = None if weight_kg is None else weight_feature(weight_kg, cfg.w_max_kg)
             feats, known = assemble(intensity, texture, stereo,
                                     size_feature(size_m, cfg.d_max_m), weight)  # eqs. 4-5
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
-            motion = motion_term(m.position, self._previous_positions, self._previous_view,
+            motion = motion_term(position, self._previous_positions, self._previous_view,
                                  cfg)
-            tactile = 1.0 if touches(frame.haptic, m.position, cfg.haptic_radius_m) else 0.0
-            mapped = is_mapped(m.position, mapped_positions, cfg.mapped_radius_m)
+            tactile = 1.0 if touches(frame.haptic, position, cfg.haptic_radius_m) else 0.0
+            mapped = is_mapped(position, mapped_positions, cfg.mapped_radius_m)
             activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
                                                   tactile, mapped, cfg)
             rois.append(Roi(
-                roi_id=roi_id, bbox=bl.bbox, position=m.position, features=feats,
+                roi_id=roi_id, bbox=bl.bbox, position=position, features=feats,
                 known=known, activation=activation, retinal_size=retinal_size,
                 mean_intensity=bl.mean_intensity, motion=motion, tactile=tactile,
                 mapped=mapped,
@@ -175,6 +178,7 @@ class Perception:
         self._previous_positions = [r.position for r in rois]
         self._previous_view = (frame.camera, frame.left_pose)
         self._last_log = (left_log, right_log)
+        self.last_roi_labels = roi_labels
         self.last_timings = timings
         return rois
 

@@ -192,20 +192,19 @@ def relative_disparities(left_resps: Sequence[np.ndarray], right_resps: Sequence
     rp = np.stack([_patch(g, c_right, e_right, half, r, magnification) for g in right_resps])
     xi = np.rint(half + dx).astype(int)
     yi = np.rint(half + dy).astype(int)
-    width = 2 * half + 1
     shifts = np.arange(-r, r + 1)
-    # SSD(t) = sum_window (L(x, y) - R(x + t, y))^2 for every resolution and shift, summed
-    # over the window at the samples through one integral image.
-    shifted = np.stack([rp[:, :, r + t:r + t + width] for t in shifts], axis=1)
-    diff2 = np.concatenate([(lp[:, None] - shifted) ** 2, (lp * lp)[:, None]], axis=1)
-    ii = np.zeros(diff2.shape[:2] + (width + 1, width + 1))
-    ii[:, :, 1:, 1:] = diff2.cumsum(axis=2).cumsum(axis=3)
     out = np.empty((len(left_resps), len(xi)))
     cols = np.arange(len(xi))
     for k, h in enumerate(half_windows):
-        y0, y1, x0, x1 = yi - h, yi + h + 1, xi - h, xi + h + 1
-        sums = ii[k, :, y1, x1] - ii[k, :, y0, x1] - ii[k, :, y1, x0] + ii[k, :, y0, x0]
-        ssd, energy = sums[:, :-1].T, sums[:, -1]
+        # SSD(t) = sum_window (L(x, y) - R(x + t, y))^2 for every shift t, gathered at the
+        # M samples only (the right patch has r extra columns on each side).
+        d = np.arange(-h, h + 1)
+        ys = yi[:, None, None] + d[None, :, None]
+        xs = xi[:, None, None] + d[None, None, :]
+        lwin = lp[k][ys, xs]
+        rwin = rp[k][ys[None], xs[None] + r + shifts[:, None, None, None]]
+        ssd = ((lwin[None] - rwin) ** 2).sum(axis=(2, 3), dtype=np.float64)
+        energy = (lwin * lwin).sum(axis=(1, 2), dtype=np.float64)
         cost = ssd + smoothness * (shifts[:, None] ** 2) * (energy[None] + 1e-12)
         best = np.argmin(cost, axis=0)
         s = shifts[best].astype(float)

@@ -1,0 +1,167 @@
+"""Perception on frames of the real simulator (roger_sim), scored with its ground truth.
+
+The label images of a frame are used here only, to score the ROIs; the core never sees
+them. That the core imports without ROS is checked elsewhere.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from conftest import WORLDS
+from roger_common.types import WEIGHT_INDEX, Action, Goal, StereoFrame
+from roger_perception.perception import Perception
+from roger_sim.simulator import Simulator
+from roger_sim.world import load_world
+
+HOME = (0.9, 0.0, 0.0)
+GAZES = (HOME, (0.7, 0.3, 0.0), (0.7, -0.3, 0.0))
+MIN_PIXELS = 150
+WORLD_NAMES = ("two_rows", "shapes", "table1", "touching")
+#: Known gaps, kept strict so that a fix shows up (see docs/perception.md, "Limits").
+KNOWN_SPLIT_FAILURES = {"touching"}
+KNOWN_POSITION_FAILURES = {"table1", "touching"}
+
+
+def _views(world: str) -> tuple[dict[str, tuple[float, ...]], list[StereoFrame]]:
+    with Simulator(load_world(WORLDS / f"{world}.yaml"), seed=0) as sim:
+        frames = [sim.run_goal(Goal(i + 1, Action.ATTENTION_SHIFT, g))[1]
+                  for i, g in enumerate(GAZES)]
+        return sim.object_poses(), frames
+
+
+@pytest.fixture(scope="module")
+def views() -> dict[str, tuple[dict[str, tuple[float, ...]], list[StereoFrame]]]:
+    return {w: _views(w) for w in WORLD_NAMES}
+
+
+def _scored(frame: StereoFrame) -> list[tuple[object, str, float, bool]]:
+    """(roi, majority object, its share of the ROI's pixels, cut by the retina's edge)."""
+    perception = Perception()
+    rois = perception.process(frame)
+    out = []
+    for roi in rois:
+        truth = frame.left_labels[perception.last_roi_labels == roi.roi_id + 1]
+        counts = np.bincount(truth[truth >= 0], minlength=len(frame.label_names))
+        share = counts.max() / truth.size
+        u0, v0, u1, v1 = roi.bbox
+        cut = u0 == 0 or v0 == 0 or u1 == frame.camera.width or v1 == frame.camera.height
+        out.append((roi, frame.label_names[int(counts.argmax())], float(share), cut))
+    return out
+
+
+def _visible(frame: StereoFrame) -> set[str]:
+    return {name for i, name in enumerate(frame.label_names)
+            if (frame.left_labels == i).sum() >= MIN_PIXELS
+            and (frame.right_labels == i).sum() >= MIN_PIXELS}
+
+
+def _mark(world: str, known: set[str], why: str) -> object:
+    return pytest.param(world, marks=pytest.mark.xfail(strict=True, reason=why)) if (
+        world in known) else world
+
+
+@pytest.mark.parametrize("world", [_mark(w, KNOWN_SPLIT_FAILURES, "front sphere and back box "
+                                         "are joined: their visible surfaces are < 0.22 m "
+                                         "apart") for w in WORLD_NAMES])
+def test_every_visible_object_yields_exactly_one_pure_roi(views, world: str) -> None:
+    _, frames = views[world]
+    for gaze, frame in zip(GAZES, frames, strict=True):
+        scored = _scored(frame)
+        owners = [name for _, name, _, _ in scored]
+        for name in _visible(frame):
+            assert owners.count(name) == 1, (world, gaze, name, owners)
+        for roi, name, share, _ in scored:
+            assert share >= 0.7, (world, gaze, roi.roi_id, name, share)
+
+
+@pytest.mark.parametrize("world", [_mark(w, KNOWN_POSITION_FAILURES, "large boxes: the "
+                                         "visible-surface centre is up to 6.5 cm off")
+                                   for w in WORLD_NAMES])
+def test_positions_of_uncut_rois_are_within_5_cm_of_the_object(views, world: str) -> None:
+    poses, frames = views[world]
+    for gaze, frame in zip(GAZES, frames, strict=True):
+        for roi, name, _, cut in _scored(frame):
+            if cut:
+                continue
+            x, y = poses[name][:2]
+            err = float(np.hypot(roi.position[0] - x, roi.position[1] - y))
+            assert err < 0.05, (world, gaze, name, err)
+
+
+@pytest.mark.parametrize("world", ["two_rows", "shapes", pytest.param("table1", marks=(
+    pytest.mark.xfail(strict=True, reason="0.30 m boxes: depth of one fronto-parallel "
+                      "plane moves ~7 cm between gazes"),))])
+def test_position_of_a_roi_moves_less_than_5_cm_between_gazes(views, world: str) -> None:
+    _, frames = views[world]
+    seen: dict[str, list[np.ndarray]] = {}
+    for frame in frames:
+        for roi, name, _, cut in _scored(frame):
+            if not cut:
+                seen.setdefault(name, []).append(np.asarray(roi.position[:2]))
+    pairs = 0
+    for name, positions in seen.items():
+        for a, b in itertools.combinations(positions, 2):
+            pairs += 1
+            assert np.hypot(*(a - b)) < 0.05, (world, name, a, b)
+    assert pairs >= 2
+
+
+@pytest.fixture(scope="module")
+def table1_features() -> dict[str, list[np.ndarray]]:
+    """Features of each Table 1 box fixated from two gazes (centre, then 4 cm off), the
+    second time after a haptic improvement, so W is known."""
+    world = load_world(WORLDS / "table1.yaml")
+    out: dict[str, list[np.ndarray]] = {}
+    with Simulator(world, seed=0) as sim:
+        perception = Perception()
+        goal = 0
+        for spec in world.objects:
+            x, y = spec.position
+            centre = (x, y, spec.size / 2.0)
+            feats = []
+            for dx, dy, haptic in ((0.0, 0.0, False), (-0.04, 0.03, True)):
+                if haptic:  # the reading comes with the frame after the haptic goal
+                    goal += 1
+                    perception.process(sim.run_goal(
+                        Goal(goal, Action.HAPTIC_IMPROVEMENT, centre))[1])
+                goal += 1
+                _, frame = sim.run_goal(Goal(goal, Action.ATTENTION_SHIFT,
+                                             (x + dx, y + dy, spec.size / 2.0)))
+                rois = perception.process(frame)
+                roi = min(rois, key=lambda r: np.hypot(r.position[0] - x, r.position[1] - y))
+                feats.append((roi.features.copy(), roi.known.copy()))
+            out[spec.name] = feats
+    return out
+
+
+def test_table1_intensity_keeps_the_order_of_the_world(table1_features) -> None:
+    names = ("obj01", "obj02", "obj03", "obj04")  # intensities 99 > 79 > 69 > 59
+    for view in (0, 1):
+        for k in range(3):
+            values = [table1_features[n][view][0][k] for n in names]
+            assert values == sorted(values, reverse=True), (view, k, values)
+
+
+def test_table1_weight_after_haptic_keeps_the_order_and_size_is_alike(table1_features) -> None:
+    weights = [table1_features[n][1][0][WEIGHT_INDEX] for n in ("obj01", "obj02", "obj04")]
+    assert all(table1_features[n][1][1][WEIGHT_INDEX] for n in table1_features)
+    assert weights[0] > weights[1] > weights[2]
+    sizes = [f[0][0][9] for f in table1_features.values()]
+    assert max(sizes) - min(sizes) < 0.15, sizes
+
+
+@pytest.mark.xfail(strict=True, reason="S^(k) of obj04 varies 0.13-0.29 between the two "
+                   "gazes: within 0.20 > between 0.15")
+def test_table1_same_object_is_closer_to_itself_than_to_others(table1_features) -> None:
+    # Over the visual features only (W is known in the second view alone).
+    vis = slice(0, WEIGHT_INDEX)
+    names = list(table1_features)
+    first = {n: table1_features[n][0][0][vis] for n in names}
+    second = {n: table1_features[n][1][0][vis] for n in names}
+    within = [float(np.linalg.norm(first[n] - second[n])) for n in names]
+    between = [float(np.linalg.norm(first[a] - second[b])) for a in names for b in names
+               if a != b]
+    assert max(within) < min(between), (within, between)
