@@ -243,7 +243,7 @@ def test_new_before_the_final_trial_counts_as_undetermined() -> None:
     assert finals == [False, False, True]
 
 
-def test_lost_focus_gives_no_match_request() -> None:
+def test_lost_focus_is_forgotten_and_attention_moves_on() -> None:
     world = FakeWorld(three_objects())
     d = Driver(make_ctl(), world, FakeMemory())
     d.cycle()                                   # shift onto b
@@ -251,8 +251,10 @@ def test_lost_focus_gives_no_match_request() -> None:
     plan, record = d.cycle()                    # visual improvement on b, now gone
     assert plan.action is V and record.outcome == "lost"
     assert d.memory.requests[-1].request_id == 1 and len(d.memory.requests) == 1
-    plan, record = d.cycle()                    # haptic, lost again; entry vanishes
-    assert record.outcome == "lost" and d.ctl.focus is None
+    # The eyes looked right at b's place and saw nothing: the place is forgotten and the
+    # only action left is a shift, to another entry.
+    assert record.entry_id not in d.ctl.spatial_map and d.ctl.focus is None
+    assert d.ctl.allowed() == (S,)
     plan, _ = d.cycle()
     assert plan.action is S and plan.entry_id != record.entry_id
 

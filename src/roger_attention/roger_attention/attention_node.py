@@ -71,6 +71,10 @@ class AttentionNode(Node):
             description="Stop after this many control cycles; 0 runs until shut down"))
         p("home_target", [0.9, 0.0, 0.0], ParameterDescriptor(
             description="Point (robot frame, m) fixated for the initial view"))
+        p("wait_for_observers", 0, ParameterDescriptor(
+            description="Start only once this many subscriptions listen on "
+                        "/roger/policy_state (the orchestrator's monitor sets 1), so that "
+                        "no cycle goes unrecorded"))
         p("retry_after_s", 10.0, ParameterDescriptor(
             description="Wall seconds without an answer before a goal or request is re-sent"))
         nested = dict(
@@ -128,7 +132,9 @@ class AttentionNode(Node):
         return (self.pub_goal.get_subscription_count() > 0
                 and self.pub_request.get_subscription_count() > 0
                 and self.count_publishers("/roger/rois") > 0
-                and self.count_publishers("/roger/memory/result") > 0)
+                and self.count_publishers("/roger/memory/result") > 0
+                and self.pub_state.get_subscription_count()
+                >= int(self.get_parameter("wait_for_observers").value))
 
     def tick(self) -> None:
         """Start when the peers are up; re-send a goal or request left unanswered."""

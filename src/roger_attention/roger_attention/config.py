@@ -95,7 +95,7 @@ class SpatialMapConfig:
     """
 
     association_radius: float = 0.15
-    moved_threshold: float = 0.06
+    moved_threshold: float = 0.12
     vanish_frames: int = 3
     interest_rate: float = 0.1
 

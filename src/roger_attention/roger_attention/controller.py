@@ -267,6 +267,12 @@ class AttentionController:
         else:
             matched = self._matched_outcome(pending, result)
             outcome = "lost" if matched is None else matched.name.lower()
+            if matched is None and entry is not None and entry.last_frame <= pending.frame:
+                # The eyes were moved onto the entry's place and no ROI was found there:
+                # a spurious region or an object that went away. Forget the place, so the
+                # policy shifts on instead of improving nothing.
+                self.spatial_map.forget(entry.entry_id)
+                entry = None
             address = result.address if matched is MatchOutcome.IDENTIFIED and result else -1
             if matched is MatchOutcome.IDENTIFIED:
                 self._focus_address = address

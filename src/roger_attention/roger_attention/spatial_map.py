@@ -196,6 +196,10 @@ class SpatialMap:
         entry.roi = dataclasses.replace(roi, mapped=entry.mapped)
         return moved
 
+    def forget(self, entry_id: int) -> None:
+        """Remove an entry: the eyes fixated its place and saw nothing there."""
+        self.entries.pop(entry_id, None)
+
     def focus(self, entry_id: int, now: float) -> None:
         """Attention focuses on the entry: its interest resets and its feature
         accumulation restarts from its freshest ROI."""
