@@ -41,6 +41,10 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
                    help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or a random one, printed)")
     p.add_argument("--timeout", type=float, default=None, help="wall-clock limit in seconds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--view", type=Path, default=None,
+                   help="write the attention view (PNG frames and view.gif) to this folder")
+    p.add_argument("--record", type=Path, default=None,
+                   help="record every topic to this MCAP file (rosbag2 layout)")
 
 
 def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -51,7 +55,8 @@ def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         cycles=cycles, until_complete=args.until_complete, stable_cycles=args.stable_cycles,
         seed=args.seed, qtable=args.qtable, memory=args.memory, learn=not args.no_learn,
         image_size=args.image_size, realtime=args.realtime, gui=args.gui,
-        domain_id=args.domain_id, timeout_s=args.timeout, progress=not args.quiet)
+        domain_id=args.domain_id, timeout_s=args.timeout, progress=not args.quiet,
+        view=args.view, record=args.record)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -59,6 +64,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from roger_bringup.run import run_graph
     metrics = run_graph(_run_options(args))
     print(json.dumps(metrics, indent=2))
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """``roger replay``: regenerate cycles.csv, metrics.json and figures from a recording."""
+    from roger_bringup.record import replay
+    print(json.dumps(replay(args.file, args.out), indent=2))
     return 0
 
 
@@ -148,6 +160,10 @@ def main(argv: list[str] | None = None) -> None:
                            help="run the same core loop without ROS (faster, no graph)")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
+    p_replay = sub.add_parser("replay", help="regenerate metrics and figures from a recording")
+    p_replay.add_argument("file", type=Path, help="MCAP file written by roger run --record")
+    p_replay.add_argument("--out", type=Path, default=Path("runs/replay"), help="output folder")
+    p_replay.set_defaults(func=cmd_replay)
     p_train = sub.add_parser("train", help="train the Q-learning policy over worlds and seeds")
     p_train.add_argument("--worlds", type=Path, nargs="+",
                          default=[Path("worlds/table1.yaml"), Path("worlds/shapes.yaml")],

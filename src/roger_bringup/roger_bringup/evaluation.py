@@ -151,15 +151,30 @@ class RunScorer:
         }
 
 
+def truth_sidecar(memory_file: Path) -> Path:
+    """Evaluation's record of which category each memory address was stored from.
+
+    Kept beside the long-term memory file so that a later run that loads the memory can
+    still score its identifications. Only the evaluation reads it.
+    """
+    return memory_file.with_name(memory_file.name + ".truth.json")
+
+
 class RunRecorder:
     """Writes cycles.csv as the run goes (flushed per row: a crash loses nothing) and
     metrics.json at the end (atomically)."""
 
-    def __init__(self, out_dir: Path, objects: list[ObjectSpec], meta: dict[str, Any]) -> None:
+    def __init__(self, out_dir: Path, objects: list[ObjectSpec], meta: dict[str, Any],
+                 memory_file: Path | None = None) -> None:
         self.out_dir = out_dir
         out_dir.mkdir(parents=True, exist_ok=True)
         self.meta = dict(meta)
         self.scorer = RunScorer({o.name: o for o in objects})
+        self.sidecar = truth_sidecar(memory_file) if memory_file is not None else None
+        if self.sidecar is not None and self.sidecar.exists():
+            data = json.loads(self.sidecar.read_text())
+            self.scorer.address_category = {
+                int(a): (tuple(c) if c is not None else None) for a, c in data.items()}
         self.rows: list[CycleRow] = []
         self.counters: dict[str, int] = {}
         self._fh: IO[str] = open(out_dir / "cycles.csv", "w", newline="")
@@ -170,7 +185,11 @@ class RunRecorder:
     def add(self, row: CycleRow) -> None:
         """Record and score one cycle."""
         self.rows.append(row)
+        before = len(self.scorer.address_category)
         self.scorer.add(row)
+        if self.sidecar is not None and len(self.scorer.address_category) != before:
+            atomic_write_bytes(self.sidecar, json.dumps(
+                {str(a): c for a, c in self.scorer.address_category.items()}).encode())
         self._csv.writerow(row.as_csv())
         self._fh.flush()
 

@@ -59,6 +59,8 @@ class RunOptions:
     timeout_s: float | None = None
     progress: bool = True
     extra_params: dict[str, list[str]] = field(default_factory=dict)
+    view: Path | None = None
+    record: Path | None = None
 
     def budget(self) -> int:
         """Cycle budget handed to the attention node."""
@@ -67,7 +69,8 @@ class RunOptions:
         return int(self.cycles or self.max_cycles)
 
 
-def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path) -> dict[str, list[str]]:
+def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
+                 observers: int) -> dict[str, list[str]]:
     def p(**kw: Any) -> list[str]:
         out: list[str] = []
         for k, v in kw.items():
@@ -79,7 +82,7 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path) -> di
         "perception": [],
         "memory": p(memory_file=memory, seed=opt.seed),
         "attention": p(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
-                       qtable_file=qtable, learn=opt.learn),
+                       qtable_file=qtable, learn=opt.learn, wait_for_observers=observers),
     }
     for name, extra in opt.extra_params.items():
         params.setdefault(name, []).extend(extra)
@@ -136,19 +139,27 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         os.environ.setdefault(key, env[key])
     meta = {"policy": opt.policy, "world": str(opt.world), "seed": opt.seed,
             "domain_id": domain_id}
-    recorder = RunRecorder(out, list(world.objects), meta)
+    recorder = RunRecorder(out, list(world.objects), meta, memory_file=memory)
     budget = opt.budget()
     timeout = opt.timeout_s if opt.timeout_s is not None else 120.0 + 3.0 * budget
     print(f"roger run: world {opt.world} ({len(world.objects)} objects), policy {opt.policy}, "
           f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id} (watch with: ROS_DOMAIN_ID={domain_id} "
           f"ros2 topic echo /roger/metrics), output {out}", file=log, flush=True)
-    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable))
     context = Context()
     rclpy.init(context=context, domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     monitor = MonitorNode(recorder, context=context)
-    executor.add_node(monitor)
+    observers: list[Any] = [monitor]
+    if opt.view is not None:
+        from roger_bringup.view_node import ViewNode
+        observers.append(ViewNode(opt.view.resolve(), context=context))
+    if opt.record is not None:
+        from roger_bringup.recorder_node import McapRecorder
+        observers.append(McapRecorder(opt.record.resolve(), meta=meta, context=context))
+    for node in observers:
+        executor.add_node(node)
+    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers)))
     restore = install_signal_handlers()
     t0 = time.monotonic()
     progress = Progress(budget, enabled=opt.progress)
@@ -165,6 +176,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         print(f"graph up after {time.monotonic() - t0:.1f} s: "
               f"{', '.join(c.name for c in graph.children)}", file=log, flush=True)
         deadline = time.monotonic() + timeout
+        done_seen: float | None = None
         while True:
             executor.spin_once(timeout_sec=0.1)
             _check_children(graph, restart=True, env=env, log=log)
@@ -172,21 +184,31 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
             progress.update(monitor.cycles, f"shifts {c.get('attention_shifts', 0)} "
                             f"new {c.get('new_objects', 0)} ids "
                             f"{c.get('positive_identifications', 0)}")
-            if monitor.done and monitor.cycles >= int(c.get("cycles", 0)):
-                status = "done"
-                break
+            if monitor.done:
+                done_seen = done_seen or time.monotonic()
+                if monitor.cycles >= int(c.get("cycles", 0)):
+                    status = "done"
+                    break
+                if time.monotonic() - done_seen > 5.0:
+                    status = f"done, {int(c.get('cycles', 0)) - monitor.cycles} cycles unrecorded"
+                    break
             if opt.until_complete and _complete(recorder, opt.stable_cycles):
                 status = "complete"
                 break
             if time.monotonic() > deadline:
                 raise RunError(f"the run did not finish within {timeout:.0f} s "
                                f"({monitor.cycles} cycles); node logs are in {out / 'logs'}")
+        # Let the observers take the last messages in flight (bounded, no bare sleep).
+        flush_until = time.monotonic() + 0.5
+        while time.monotonic() < flush_until:
+            executor.spin_once(timeout_sec=0.05)
     finally:
         progress.close()
         restore()
         killed = graph.stop()
         executor.shutdown()
-        monitor.destroy_node()
+        for node in observers:
+            node.destroy_node()
         rclpy.try_shutdown(context=context)
         metrics = recorder.close(time.monotonic() - t0)
         metrics_status = {"status": status, "killed_on_stop": killed,

@@ -70,6 +70,8 @@ TOPICS: tuple[Topic, ...] = (
           "Table 2 counters as the run goes"),
     Topic("/roger/spatial_map", "roger_interfaces/SpatialMap", "latched", "attention",
           "perception", "the pre-attentional map: positions, mapping status, interest"),
+    Topic("/roger/view", "sensor_msgs/Image", "images", "view (roger run --view)", "-",
+          "retinas side by side, ROIs, attention window, state, counters", per_cycle=False),
     Topic("/roger/world_edit", "roger_interfaces/WorldEdit", "reliable", "user", "sim",
           "add / remove / move an object while running (also service /roger/edit_world)",
           per_cycle=False),

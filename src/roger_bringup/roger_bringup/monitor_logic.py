@@ -1,0 +1,104 @@
+"""The monitor's bookkeeping, message by message, without a node around it.
+
+The live monitor (``monitor_node.MonitorNode``) and ``roger replay`` (``record.replay``) must
+score a run the same way, so both feed this one class with the same four message types:
+the world's objects (GroundTruth), the label images of each stereo pair
+(GroundTruthLabels), each finished cycle (PolicyState) and the live counters (Metrics).
+Messages are read by attribute only, so this module needs no rclpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from roger_common.types import Action, ObjectSpec
+
+from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
+
+#: Label images kept, by stamp, for the policy states that refer to them.
+LABELS_KEPT = 32
+#: Metrics message fields that are Table 2 counters.
+COUNTER_FIELDS: tuple[str, ...] = (
+    "cycles", "attention_shifts", "improvements", "visual_improvements",
+    "haptic_improvements", "positive_identifications", "new_objects", "map_updates")
+
+
+def spec_from_msg(o: Any) -> ObjectSpec:
+    """A WorldObject message as an ObjectSpec (for categories)."""
+    return ObjectSpec(name=o.name, shape=o.shape, position=(o.x, o.y), size=o.size,
+                      intensity=o.intensity, weight=o.weight, yaw=o.yaw, texture=o.texture)
+
+
+def _stamp_key(t: Any) -> tuple[int, int]:
+    return int(t.sec), int(t.nanosec)
+
+
+def _seconds(t: Any) -> float:
+    return t.sec + t.nanosec * 1e-9
+
+
+class RunMonitor:
+    """Turns the attention node's reports and the simulator's ground truth into a run log.
+
+    Attributes:
+        recorder: Receives one CycleRow per finished cycle and the live counters.
+        labels: The last LABELS_KEPT left label images and their object names, by stamp.
+        done: True once a Metrics message said the run reached its stop condition.
+    """
+
+    def __init__(self, recorder: RunRecorder) -> None:
+        """Start with no labels and nothing recorded."""
+        self.recorder = recorder
+        self.labels: OrderedDict[tuple[int, int], tuple[np.ndarray, tuple[str, ...]]] = \
+            OrderedDict()
+        self.done = False
+
+    @property
+    def cycles(self) -> int:
+        """Cycles recorded so far."""
+        return len(self.recorder.rows)
+
+    def on_truth(self, msg: Any) -> None:
+        """The world's objects (at start and after each change)."""
+        self.recorder.scorer.set_objects([spec_from_msg(o) for o in msg.objects])
+
+    def on_labels(self, msg: Any) -> None:
+        """Keep the last few frames' left label images by stamp."""
+        img = msg.left
+        labels = np.frombuffer(bytes(img.data), np.int32).reshape(img.height, img.width)
+        self.labels[_stamp_key(msg.header.stamp)] = (labels, tuple(msg.label_names))
+        while len(self.labels) > LABELS_KEPT:
+            self.labels.popitem(last=False)
+
+    def row_from_state(self, msg: Any) -> CycleRow:
+        """The CycleRow of a PolicyState message, scored against the labels of its frame."""
+        seen = None
+        key = _stamp_key(msg.frame_stamp)
+        if msg.action != Action.MAP_UPDATE and key in self.labels and msg.x1 > msg.x0:
+            labels, names = self.labels[key]
+            seen = object_under_window(labels, names, (msg.x0, msg.y0, msg.x1, msg.y1))
+        true_object = self.recorder.scorer.true_object_for(msg.action, msg.entry_id, seen)
+        td = float(msg.td_error)
+        p = msg.position
+        return CycleRow(
+            cycle=int(msg.cycle), state=msg.state_before, action=int(msg.action),
+            reward=float(msg.reward), td_error=None if math.isnan(td) else td,
+            roi=int(msg.entry_id), true_object=true_object, outcome=msg.outcome,
+            state_after=msg.state_after, address=int(msg.address),
+            position=(p.x, p.y, p.z) if msg.entry_id >= 0 else None,
+            sim_time=_seconds(msg.header.stamp))
+
+    def on_state(self, msg: Any) -> CycleRow:
+        """One finished cycle: find the object under the attention window, record it."""
+        row = self.row_from_state(msg)
+        self.recorder.add(row)
+        return row
+
+    def on_metrics(self, msg: Any) -> None:
+        """Live counters; ``done`` ends the run."""
+        self.recorder.counters = {k: int(getattr(msg, k)) for k in COUNTER_FIELDS}
+        if msg.done:
+            self.done = True
