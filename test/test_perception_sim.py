@@ -153,8 +153,6 @@ def test_table1_weight_after_haptic_keeps_the_order_and_size_is_alike(table1_fea
     assert max(sizes) - min(sizes) < 0.15, sizes
 
 
-@pytest.mark.xfail(strict=True, reason="S^(k) of obj04 varies 0.13-0.29 between the two "
-                   "gazes: within 0.20 > between 0.15")
 def test_table1_same_object_is_closer_to_itself_than_to_others(table1_features) -> None:
     # Over the visual features only (W is known in the second view alone).
     vis = slice(0, WEIGHT_INDEX)

@@ -1,7 +1,7 @@
 """Regions of interest of one retina (the thin lines of the paper's Figure 2).
 
 The ground is dark, objects are brighter: the foreground is where the (lightly smoothed)
-intensity lies ``fg_threshold`` above the background level, the median of the retina.
+intensity lies ``fg_threshold`` above the background level, a low quantile of the retina.
 Objects that touch in the image form one connected foreground region, so the foreground
 is cut further into *fragments*: a marker-based watershed (``cv2.watershed``) whose
 markers are the flat parts of the foreground (intensity gradient below
@@ -55,11 +55,17 @@ class Blob:
         return self.bbox[2] - self.bbox[0]
 
 
+#: Share of the retina below the background level. Not the median: an object fixated from
+#: close fills more than half the retina, and the median then made it "background".
+BACKGROUND_QUANTILE = 0.1
+
+
 def background_level(image: np.ndarray) -> float:
-    """Intensity of the ground: the median of the retina (objects cover less than half)."""
+    """Intensity of the ground: a low quantile of the retina (the ground is its darkest
+    large surface; objects may cover most of it)."""
     flat = np.asarray(image, np.float32).ravel()
-    mid = flat.size // 2
-    return float(np.partition(flat, mid)[mid])
+    k = int(flat.size * BACKGROUND_QUANTILE)
+    return float(np.partition(flat, k)[k])
 
 
 def foreground_mask(image: np.ndarray, cfg: PerceptionConfig) -> tuple[np.ndarray, float]:

@@ -184,22 +184,30 @@ def _box(client: int, half: tuple[float, float, float], offset: tuple[float, flo
          grey: float, visual: bool = True) -> tuple[int, int]:
     col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, collisionFramePosition=offset,
                                   physicsClientId=client)
-    vis = -1
     if visual:
         vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, visualFramePosition=offset,
+                                   rgbaColor=[grey, grey, grey, 1.0], physicsClientId=client)
+    else:
+        # A link without a visual shape has its collision shape drawn (in white) by the
+        # TinyRenderer; a speck of 0.1 mm is what "not seen" takes.
+        vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=1e-4, visualFramePosition=offset,
                                    rgbaColor=[grey, grey, grey, 1.0], physicsClientId=client)
     return col, vis
 
 
-def build_robot(client: int, grey: float) -> RobotModel:
+def build_robot(client: int, grey: float, visible: bool = False) -> RobotModel:
     """Create Roger's multibody in ``client`` and return its handles.
 
     Args:
         client: pybullet physics client id.
         grey: Grey level of every robot link (near black so perception ignores it).
+        visible: Give the links visual shapes (for pybullet's GUI window). Off by default:
+            the retinas must not see the robot's own body, head or arms (seen: with the neck
+            turned far, the shoulder below an eye filled half its retina and hid objects).
     """
-    # The body stands behind the eyes so that even a steep look down does not see it.
-    base_col, base_vis = _box(client, (0.12, 0.15, 0.35), (-0.15, 0.0, 0.35), grey)
+    # The body stands behind the eyes; with the neck turned far an eye still swings over it.
+    base_col, base_vis = _box(client, (0.12, 0.15, 0.35), (-0.15, 0.0, 0.35), grey,
+                              visual=visible)
     links: list[tuple[str, int, str, float, tuple, tuple, tuple]] = []
     # (name, parent link index +1, joint type, mass, joint position in parent, half, offset)
     links.append(("neck_pan", 0, "rz", 0.5, (0.0, 0.0, NECK_HEIGHT - 0.1),
@@ -225,8 +233,8 @@ def build_robot(client: int, grey: float) -> RobotModel:
              "fixed": pb.JOINT_FIXED}
     cols, viss = [], []
     for name, _, _, _, _, half, offset in links:
-        # The eyes get no visual shape: a camera must not see its own eyeball.
-        col, vis = _box(client, half, offset, grey, visual="eye" not in name)
+        # The eyes never get a visual shape: a camera must not see its own eyeball.
+        col, vis = _box(client, half, offset, grey, visual=visible and "eye" not in name)
         cols.append(col)
         viss.append(vis)
     body = pb.createMultiBody(

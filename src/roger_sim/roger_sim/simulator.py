@@ -80,7 +80,7 @@ class Simulator:
         self._ground = pb.createMultiBody(0.0, ground_col, ground_vis, [0.0, 0.0, -0.05],
                                           physicsClientId=c)
         pb.changeDynamics(self._ground, -1, lateralFriction=0.8, physicsClientId=c)
-        self.robot = build_robot(c, cfg.robot_grey)
+        self.robot = build_robot(c, cfg.robot_grey, visible=cfg.gui)
         self._names = self.robot.joint_names
         self._indices = [self.robot.joint_index[n] for n in self._names]
         self._servos: dict[str, JointServo] = {}
