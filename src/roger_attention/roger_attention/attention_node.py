@@ -69,8 +69,11 @@ class AttentionNode(Node):
             description="Q-learning: update the table (training) or only run it"))
         p("max_cycles", 0, ParameterDescriptor(
             description="Stop after this many control cycles; 0 runs until shut down"))
-        p("home_target", [0.9, 0.0, 0.0], ParameterDescriptor(
-            description="Point (robot frame, m) fixated for the initial view"))
+        p("home_targets", [0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0, 0.75, -0.4, 0.0,
+           0.45, -0.7, 0.0],
+          ParameterDescriptor(
+              description="Points (x, y, z triples, robot frame, m) fixated in turn by the "
+                          "initial scan that settles the map before the first cycle"))
         p("wait_for_observers", 0, ParameterDescriptor(
             description="Start only once this many subscriptions listen on "
                         "/roger/policy_state (the orchestrator's monitor sets 1), so that "
@@ -186,8 +189,11 @@ class AttentionNode(Node):
 
     def _look_again(self) -> None:
         self.destroy_timer(self._relook)
-        home = tuple(float(v) for v in self.get_parameter("home_target").value)
-        self._send_goal(Goal(INITIAL_GOAL_ID, Action.ATTENTION_SHIFT, home))
+        flat = [float(v) for v in self.get_parameter("home_targets").value]
+        if not flat or len(flat) % 3:
+            raise ValueError(f"home_targets must hold x, y, z triples, got {flat}")
+        self._scan = [tuple(flat[i:i + 3]) for i in range(0, len(flat), 3)]
+        self._send_goal(Goal(INITIAL_GOAL_ID, Action.ATTENTION_SHIFT, self._scan.pop(0)))
 
     def on_rois(self, msg: RoiArray) -> None:
         """The stereo pair after our goal was perceived: observe, then match."""
@@ -205,7 +211,11 @@ class AttentionNode(Node):
         self.ctl.observe(rois, stamp, self._visible(msg.header.stamp))
         self.pub_map.publish(conv.spatial_map_msg(self.ctl.spatial_map, stamp))
         if int(msg.goal_id) == INITIAL_GOAL_ID:
-            self.next_cycle()
+            if self._scan:
+                self._send_goal(Goal(INITIAL_GOAL_ID, Action.ATTENTION_SHIFT,
+                                     self._scan.pop(0)))
+            else:
+                self.next_cycle()
             return
         req = self.ctl.match_request()
         if req is None:

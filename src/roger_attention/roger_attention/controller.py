@@ -44,7 +44,7 @@ from roger_attention.fsm import (
     transition,
 )
 from roger_attention.policies import Policy
-from roger_attention.spatial_map import MapChanges, Position, SpatialMap, VisibleFn
+from roger_attention.spatial_map import MapChanges, MapEntry, Position, SpatialMap, VisibleFn
 
 #: Outcome strings of a CycleRecord.
 OUTCOMES: tuple[str, ...] = (
@@ -261,6 +261,7 @@ class AttentionController:
         if plan.idle:
             return self._record(plan, state, state, 0.0, None, "none", -1)
         entry = self.spatial_map.get(plan.entry_id)
+        forgotten: MapEntry | None = None
         if plan.action is Action.MAP_UPDATE:
             outcome, address = self._map_update(state, result)
             next_state = transition(state, plan.action, None, True)
@@ -272,7 +273,7 @@ class AttentionController:
                 # a spurious region or an object that went away. Forget the place, so the
                 # policy shifts on instead of improving nothing.
                 self.spatial_map.forget(entry.entry_id)
-                entry = None
+                forgotten, entry = entry, None
             address = result.address if matched is MatchOutcome.IDENTIFIED and result else -1
             if matched is MatchOutcome.IDENTIFIED:
                 self._focus_address = address
@@ -292,7 +293,7 @@ class AttentionController:
             self.td_errors.append(td)
         if self.focus is not None:
             self.spatial_map.keep_focus(self.focus, now)
-        return self._record(plan, state, next_state, r, td, outcome, address)
+        return self._record(plan, state, next_state, r, td, outcome, address, forgotten)
 
     def _matched_outcome(self, pending: _Pending,
                          result: MatchResult | None) -> MatchOutcome | None:
@@ -355,8 +356,9 @@ class AttentionController:
         return rid
 
     def _record(self, plan: CyclePlan, before: State, after: State, r: float,
-                td: float | None, outcome: str, address: int) -> CycleRecord:
-        entry = self.spatial_map.get(plan.entry_id)
+                td: float | None, outcome: str, address: int,
+                forgotten: MapEntry | None = None) -> CycleRecord:
+        entry = self.spatial_map.get(plan.entry_id) or forgotten
         return CycleRecord(
             cycle=plan.cycle,
             state_before=before.bits, action=plan.action, state_after=after.bits, reward=r,

@@ -27,8 +27,11 @@ from roger_sim.simulator import Simulator
 
 from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
 
-#: The initial look, as the attention node does it.
-HOME_TARGET = (0.9, 0.0, 0.0)
+#: The initial scan, as the attention node does it (its ``home_targets`` parameter): five
+#: looks from far left to far right (bearings about +-60, +-28 and 0 degrees) that settle
+#: the pre-attentional map over the whole workspace before the first cycle.
+HOME_TARGETS: tuple[tuple[float, float, float], ...] = (
+    (0.45, 0.7, 0.0), (0.75, 0.4, 0.0), (0.9, 0.0, 0.0), (0.75, -0.4, 0.0), (0.45, -0.7, 0.0))
 
 
 @dataclass
@@ -67,8 +70,9 @@ class CoreLoop:
         self.ctl.observe(rois, frame.stamp, lambda p: in_view(camera, pose, p, margin))
 
     def _look(self) -> None:
-        _, frame = self.sim.run_goal(Goal(0, Action.ATTENTION_SHIFT, HOME_TARGET))
-        self._perceive(frame)
+        for target in HOME_TARGETS:
+            _, frame = self.sim.run_goal(Goal(0, Action.ATTENTION_SHIFT, target))
+            self._perceive(frame)
 
     def step(self) -> CycleRecord | None:
         """One control cycle; None when there was nothing to attend to (an idle look)."""

@@ -45,8 +45,10 @@ NODE_PARAMETERS: tuple[tuple[str, str, Any, str], ...] = (
      "Q-learning: update the table (training) or only run it"),
     ("roger_attention", "max_cycles", 0,
      "Stop after this many control cycles; 0 runs until shut down"),
-    ("roger_attention", "home_target", [0.9, 0.0, 0.0],
-     "Point (robot frame, m) fixated for the initial view"),
+    ("roger_attention", "home_targets", [0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0, 0.75, -0.4, 0.0,
+                                        0.45, -0.7, 0.0],
+     ("Points (x, y, z triples, robot frame, m) fixated in turn by the initial scan that "
+      "settles the map before the first cycle")),
     ("roger_attention", "wait_for_observers", 0,
      ("Start only once this many subscriptions listen on /roger/policy_state (the "
       "orchestrator's monitor sets 1), so that no cycle goes unrecorded")),
