@@ -12,7 +12,7 @@ from roger_common.errors import RogerError
 #: Default world of the demo.
 DEFAULT_WORLD = Path("worlds/table1.yaml")
 #: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
-DEMO_WORLD = Path("worlds/two_rows.yaml")
+DEMO_WORLD = Path("worlds/inspection.yaml")
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
