@@ -1,0 +1,95 @@
+"""Ground-truth scoring on hand-made cycle logs, and the claim statistics of compare."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from roger_common.types import Action, ObjectSpec
+
+from roger_bringup.compare import RunResult, check_claims, sign_test_p, table2
+from roger_bringup.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
+
+S, V, H, M = (int(a) for a in Action)
+
+
+def obj(name: str, intensity: float = 99.0, weight: float = 1.0) -> ObjectSpec:
+    return ObjectSpec(name=name, shape="box", position=(0.8, 0.0), size=0.2,
+                      intensity=intensity, weight=weight)
+
+
+def row(cycle, action, true, outcome, address=-1, roi=1) -> CycleRow:
+    return CycleRow(cycle=cycle, state="000", action=action, reward=0.0, td_error=None,
+                    roi=roi, true_object=true, outcome=outcome, address=address)
+
+
+def test_same_category_identifications_are_correct_others_are_not():
+    # a1 and a2 are one category (identical properties); b differs in weight.
+    scorer = RunScorer({o.name: o for o in (obj("a1"), obj("a2"), obj("b", weight=0.5))})
+    log = [row(1, S, "a1", "undetermined"), row(2, M, "a1", "stored", address=0),
+           row(3, S, "a2", "identified"), row(4, M, "a2", "mapped", address=0),   # right
+           row(5, S, "b", "identified"), row(6, M, "b", "mapped", address=0),     # wrong
+           row(7, S, "b", "undetermined"), row(8, M, "b", "stored", address=1),   # right
+           row(9, S, "a2", "undetermined"), row(10, M, "a2", "stored", address=2)]  # wrong
+    for r in log:
+        scorer.add(r)
+    res = scorer.results()
+    assert res["identification_precision"] == pytest.approx(1 / 2)
+    assert res["novelty_precision"] == pytest.approx(2 / 3)
+    assert res["objects_visited"] == 3 and res["objects_in_world"] == 3
+
+
+def test_map_update_takes_the_object_last_seen_for_its_roi():
+    scorer = RunScorer({"a": obj("a"), "b": obj("b", weight=0.5)})
+    assert scorer.true_object_for(S, 4, "a") == "a"
+    assert scorer.true_object_for(S, 5, "b") == "b"
+    assert scorer.true_object_for(M, 4, None) == "a"
+    assert scorer.true_object_for(M, 9, None) is None
+
+
+def test_no_identification_gives_no_precision_not_zero():
+    scorer = RunScorer({"a": obj("a")})
+    scorer.add(row(1, S, "a", "undetermined"))
+    assert scorer.results()["identification_precision"] is None
+
+
+def test_recorder_writes_csv_per_row_and_counters_match_the_log(tmp_path):
+    rec = RunRecorder(tmp_path, [obj("a")], {"policy": "p"}, memory_file=tmp_path / "m.pt")
+    rows = [row(1, S, "a", "undetermined"), row(2, V, "a", "undetermined"),
+            row(3, H, "a", "new"), row(4, M, "a", "stored", address=0)]
+    for r in rows[:2]:
+        rec.add(r)
+    assert len((tmp_path / "cycles.csv").read_text().splitlines()) == 3  # flushed already
+    for r in rows[2:]:
+        rec.add(r)
+    rec.counters = counters_from_rows(rows)
+    metrics = rec.close(1.0)
+    assert metrics["cycles"] == 4 and metrics["new_objects"] == 1 and metrics["improvements"] == 2
+    assert json.loads((tmp_path / "metrics.json").read_text()) == metrics
+    # The evaluation's sidecar lets a later run that loads the memory score it.
+    rec2 = RunRecorder(tmp_path / "second", [obj("a")], {}, memory_file=tmp_path / "m.pt")
+    rec2.add(row(1, S, "a", "identified"))
+    rec2.add(row(2, M, "a", "mapped", address=0))
+    assert rec2.scorer.results()["identification_precision"] == 1.0
+
+
+def test_sign_test_and_claims():
+    assert sign_test_p(5, 0) == pytest.approx(2 / 32)
+    assert sign_test_p(0, 0) == 1.0
+    base = {"attention_shifts": 10, "improvements": 10, "positive_identifications": 5,
+            "new_objects": 5, "map_updates": 10, "objects_visited": 4,
+            "identification_precision": 1.0, "novelty_precision": 1.0, "wall_seconds": 1.0,
+            "cycles": 30}
+    results = []
+    for seed in range(5):
+        q = dict(base, attention_shifts=12 + seed, improvements=8)
+        results += [RunResult("qlearning", seed, q, []), RunResult("straightforward", seed,
+                                                                   dict(base), [])]
+    claims = {c["column"]: c for c in check_claims(results)}
+    assert claims["attention_shifts"]["verdict"] == "holds"
+    assert claims["attention_shifts"]["holds_in"] == 5
+    assert claims["improvements"]["verdict"] == "holds"
+    assert claims["map_updates"]["verdict"] == "no difference"
+    t = table2(results)
+    assert t["qlearning"]["attention_shifts"]["mean"] == pytest.approx(14.0)
+    assert t["straightforward"]["attention_shifts"]["sd"] == 0.0
