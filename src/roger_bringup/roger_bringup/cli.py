@@ -67,6 +67,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    """``roger bench``: graph vs core, cycle vs floor, scaling; writes DIR/bench.json."""
+    from roger_bringup.bench import main_bench
+    result = main_bench(args.out, quick=args.quick)
+    print(f"bench.json: {args.out / 'bench.json'}")
+    return 0 if result else 1
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     """``roger replay``: regenerate cycles.csv, metrics.json and figures from a recording."""
     from roger_bringup.record import replay
@@ -160,6 +168,10 @@ def main(argv: list[str] | None = None) -> None:
                            help="run the same core loop without ROS (faster, no graph)")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
+    p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
+    p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")
+    p_bench.add_argument("--quick", action="store_true", help="a few cycles only (smoke test)")
+    p_bench.set_defaults(func=cmd_bench)
     p_replay = sub.add_parser("replay", help="regenerate metrics and figures from a recording")
     p_replay.add_argument("file", type=Path, help="MCAP file written by roger run --record")
     p_replay.add_argument("--out", type=Path, default=Path("runs/replay"), help="output folder")
