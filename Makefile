@@ -35,11 +35,12 @@ $(STAMPS)/requirements: requirements.txt
 
 $(STAMPS)/interfaces: $(STAMPS)/requirements src/roger_interfaces/CMakeLists.txt src/roger_interfaces/package.xml $(MSG_FILES)
 	@echo "building roger_interfaces (messages) into $(VENV)"
+	@mkdir -p build
 	@export AMENT_PREFIX_PATH=$(ROOT)/$(VENV) PATH=$(ROOT)/$(VENV)/bin:$$PATH; \
 	  cmake -S src/roger_interfaces -B build/roger_interfaces -Wno-dev \
 	    -DCMAKE_PREFIX_PATH=$(ROOT)/$(VENV) -DCMAKE_INSTALL_PREFIX=$(ROOT)/$(VENV) \
 	    -DPython3_EXECUTABLE=$(ROOT)/$(PY) -DBUILD_TESTING=OFF > build/interfaces-configure.log 2>&1 \
-	  || { mkdir -p build; echo "cmake configure failed: see build/interfaces-configure.log"; tail -20 build/interfaces-configure.log; exit 1; }; \
+	  || { echo "cmake configure failed: see build/interfaces-configure.log"; tail -20 build/interfaces-configure.log; exit 1; }; \
 	  cmake --build build/roger_interfaces -j2 > build/interfaces-build.log 2>&1 \
 	  || { echo "cmake build failed: see build/interfaces-build.log"; tail -30 build/interfaces-build.log; exit 1; }; \
 	  cmake --install build/roger_interfaces > build/interfaces-install.log 2>&1
