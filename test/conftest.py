@@ -52,12 +52,19 @@ def child_pids() -> set[int]:
 
 @pytest.fixture
 def no_leaks():
-    """Fail the test if it leaves a child process or a new /dev/shm file behind."""
+    """Fail the test if it leaves a child process or a new /dev/shm file behind.
+
+    A leaked file is one that appeared during the test and that no live process holds:
+    files of other graphs running on the machine at the same time are in use (and so are
+    the port files Fast DDS keeps mapped in this process until it exits).
+    """
+    from roger_bringup.orchestrator import held_shm_files
+
     before_shm = shm_files()
     before_children = child_pids()
     yield
     leaked_children = child_pids() - before_children
-    new_shm = shm_files() - before_shm
+    new_shm = shm_files() - before_shm - held_shm_files()
     assert not leaked_children, f"child processes left running: {sorted(leaked_children)}"
     assert not new_shm, f"files left in /dev/shm: {sorted(new_shm)}"
 

@@ -4,6 +4,9 @@
 network hygiene (localhost discovery, a domain id per run, logs under the run's folder),
 starts the four nodes, waits until each is visible on the graph (no fixed sleeps), records
 the run through its own monitor node, and ends every child on completion, Ctrl-C or SIGTERM.
+A child that dies mid-run (even by SIGKILL) is reported, what it left in /dev/shm is
+removed, and it is started again; it resumes from the run's state folder
+(``ROGER_STATE_DIR``, docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -19,6 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+#: Environment variable naming the folder where nodes keep what they need to resume.
+STATE_DIR_ENV = "ROGER_STATE_DIR"
 
 #: Node processes of the graph: (name, module).
 NODES: tuple[tuple[str, str], ...] = (
@@ -46,10 +52,12 @@ def ros_environment(out_dir: Path, domain_id: int, base: dict[str, str] | None =
     """The environment of every process of a run.
 
     Localhost-only discovery is the default (traffic on these machines may only go to
-    loopback); a user who exported ROS_AUTOMATIC_DISCOVERY_RANGE keeps theirs.
+    loopback); a user who exported ROS_AUTOMATIC_DISCOVERY_RANGE keeps theirs. The nodes'
+    resume state goes to ``out_dir/state``.
     """
     env = dict(os.environ if base is None else base)
     env["ROS_DOMAIN_ID"] = str(domain_id)
+    env[STATE_DIR_ENV] = str(out_dir / "state")
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env["ROS_LOG_DIR"] = str(out_dir / "ros_logs")
     env.setdefault("PYTHONUNBUFFERED", "1")
@@ -77,15 +85,12 @@ def shm_files() -> set[str]:
         return set()
 
 
-def clean_shm(before: set[str], pids: list[int]) -> list[str]:
-    """Remove Fast DDS files left in /dev/shm by processes that were killed.
-
-    Only files that appeared during the run and that no live process holds open are
-    removed, so a concurrent graph keeps its own.
-    """
+def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
+    """Files in /dev/shm that a live process (other than ``ignore``) has open or mapped."""
     held: set[str] = set()
+    skip = {str(p) for p in ignore}
     for pid_dir in Path("/proc").iterdir():
-        if not pid_dir.name.isdigit():
+        if not pid_dir.name.isdigit() or pid_dir.name in skip:
             continue
         try:
             for fd in (pid_dir / "fd").iterdir():
@@ -98,6 +103,22 @@ def clean_shm(before: set[str], pids: list[int]) -> list[str]:
                     held.add(line.split("/dev/shm/", 1)[1].strip())
         except OSError:
             continue
+    return held
+
+
+def clean_shm(before: set[str], pids: list[int]) -> list[str]:
+    """Remove Fast DDS files left in /dev/shm by processes that were killed.
+
+    Only files that appeared during the run and that no live process holds open are
+    removed, so a concurrent graph keeps its own.
+
+    Args:
+        before: The files there before the run started (never removed).
+        pids: Processes whose holds do not count: this process once its ROS context is
+            destroyed (Fast DDS keeps a discovery port file mapped until exit, and nobody
+            removes it after a peer was killed).
+    """
+    held = held_shm_files(ignore=pids)
     removed = []
     for name in sorted(shm_files() - before - held):
         try:
@@ -130,6 +151,16 @@ class Child:
         finally:
             log.close()
 
+    def exit_reason(self) -> str:
+        """How the process ended, in words ("exit 1", "killed by SIGKILL")."""
+        code = self.proc.returncode if self.proc is not None else None
+        if code is not None and code < 0:
+            try:
+                return f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                return f"killed by signal {-code}"
+        return f"exit {code}"
+
     def alive(self) -> bool:
         """True while the process runs."""
         return self.proc is not None and self.proc.poll() is None
@@ -151,14 +182,19 @@ class Graph:
     env: dict[str, str]
     node_args: dict[str, list[str]]
     children: list[Child] = field(default_factory=list)
-    shm_before: set[str] = field(default_factory=set)
+    shm_before: set[str] | None = None
+    external: tuple[str, ...] = ()
+    deaths: list[dict[str, Any]] = field(default_factory=list)
 
     def start(self) -> None:
-        """Start every node process."""
+        """Start every node process (except the ``external`` ones, started elsewhere)."""
         logs = self.out_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        self.shm_before = shm_files()
+        if self.shm_before is None:
+            self.shm_before = shm_files()
         for name, module in NODES:
+            if name in self.external:
+                continue
             args = ["--ros-args", "-p", "use_sim_time:=true", *self.node_args.get(name, [])]
             child = Child(name, module, args, logs / f"{name}.log")
             child.start(self.env)
@@ -167,6 +203,21 @@ class Graph:
     def dead(self) -> list[Child]:
         """Children that have exited."""
         return [c for c in self.children if not c.alive()]
+
+    def restart(self, child: Child) -> list[str]:
+        """Reap a dead child, remove the /dev/shm files nobody holds any more, start it again.
+
+        Returns:
+            The /dev/shm files removed.
+        """
+        if child.proc is not None:
+            child.proc.wait()
+        removed = clean_shm(self.shm_before or set(), [])
+        self.deaths.append({"node": child.name, "reason": child.exit_reason(),
+                            "shm_removed": len(removed)})
+        child.restarts += 1
+        child.start(self.env)
+        return removed
 
     def stop(self, timeout: float = 10.0) -> list[str]:
         """SIGINT every child, wait, then SIGKILL what is left; clean what killed ones left.
@@ -192,7 +243,7 @@ class Graph:
                 c.proc.wait()  # type: ignore[union-attr]
                 killed.append(c.name)
         if killed:
-            clean_shm(self.shm_before, [])
+            clean_shm(self.shm_before or set(), [])
         return killed
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -14,23 +15,34 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
+from roger_attention.qlearning import QTable
 from roger_common.errors import RogerError
+from roger_memory.persistence import load_snapshot
 from roger_sim.world import load_world
 
-from roger_bringup.evaluation import RunRecorder
+from roger_bringup.evaluation import CycleRow, RunRecorder
 from roger_bringup.monitor_node import MonitorNode
 from roger_bringup.orchestrator import (
+    STATE_DIR_ENV,
     Graph,
     StopRequested,
+    clean_shm,
     install_signal_handlers,
     pick_domain_id,
     ros_environment,
+    shm_files,
 )
 
 #: Wall seconds the graph may take to come up.
 STARTUP_TIMEOUT_S = 60.0
 #: Restarts allowed per node before the run gives up.
 MAX_RESTARTS = 3
+#: Wall seconds after which the attention node re-sends an unanswered goal or request in a
+#: run (the node's own default, 10 s, is for a graph started by hand): a restarted peer is
+#: back within a few seconds, and re-sent goals and requests are answered only once.
+RETRY_AFTER_S = 3.0
+#: Wall seconds without a new cycle (once cycling) after which the run is declared stalled.
+STALL_S = 90.0
 
 
 class RunError(RogerError):
@@ -61,6 +73,7 @@ class RunOptions:
     extra_params: dict[str, list[str]] = field(default_factory=dict)
     view: Path | None = None
     record: Path | None = None
+    external: tuple[str, ...] = ()
 
     def budget(self) -> int:
         """Cycle budget handed to the attention node."""
@@ -82,11 +95,41 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
         "perception": [],
         "memory": p(memory_file=memory, seed=opt.seed),
         "attention": p(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
-                       qtable_file=qtable, learn=opt.learn, wait_for_observers=observers),
+                       qtable_file=qtable, learn=opt.learn, wait_for_observers=observers,
+                       retry_after_s=RETRY_AFTER_S),
     }
     for name, extra in opt.extra_params.items():
         params.setdefault(name, []).extend(extra)
     return params
+
+
+class ResumingRecorder(RunRecorder):
+    """A RunRecorder that keeps one row per cycle number.
+
+    A restarted attention node re-sends its last report (it cannot know whether it went
+    out before the crash); the copy of a cycle already recorded is dropped.
+    """
+
+    duplicates = 0
+
+    def add(self, row: CycleRow) -> None:
+        """Record a cycle unless its number is already recorded."""
+        if self.rows and row.cycle <= self.rows[-1].cycle:
+            self.duplicates += 1
+            return
+        super().add(row)
+
+
+def check_files(memory: Path, qtable: Path) -> None:
+    """Refuse a corrupt memory or Q-table file before anything starts (one line each).
+
+    Raises:
+        MemoryFileError: Naming the file and what is wrong with it.
+    """
+    if memory.exists():
+        load_snapshot(memory)
+    if qtable.exists():
+        QTable.load(qtable)
 
 
 class Progress:
@@ -133,18 +176,25 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     memory = (opt.memory or out / "memory.pt").resolve()
     qtable = (opt.qtable or out / "qtable.json").resolve()
+    check_files(memory, qtable)
     domain_id = opt.domain_id if opt.domain_id is not None else pick_domain_id()
     env = ros_environment(out, domain_id)
+    # Resume state belongs to one run: a new run into the same folder starts afresh.
+    shutil.rmtree(env[STATE_DIR_ENV], ignore_errors=True)
+    Path(env[STATE_DIR_ENV]).mkdir(parents=True)
     for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR"):
         os.environ.setdefault(key, env[key])
     meta = {"policy": opt.policy, "world": str(opt.world), "seed": opt.seed,
             "domain_id": domain_id}
-    recorder = RunRecorder(out, list(world.objects), meta, memory_file=memory)
+    recorder = ResumingRecorder(out, list(world.objects), meta, memory_file=memory)
     budget = opt.budget()
     timeout = opt.timeout_s if opt.timeout_s is not None else 120.0 + 3.0 * budget
     print(f"roger run: world {opt.world} ({len(world.objects)} objects), policy {opt.policy}, "
           f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id} (watch with: ROS_DOMAIN_ID={domain_id} "
           f"ros2 topic echo /roger/metrics), output {out}", file=log, flush=True)
+    # Taken before this process joins the graph, so that the files its own participant
+    # creates count as the run's (removed at the end if a killed peer left them in use).
+    shm_before = shm_files()
     context = Context()
     rclpy.init(context=context, domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
@@ -159,7 +209,8 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         observers.append(McapRecorder(opt.record.resolve(), meta=meta, context=context))
     for node in observers:
         executor.add_node(node)
-    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers)))
+    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers)),
+                  shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
     t0 = time.monotonic()
     progress = Progress(budget, enabled=opt.progress)
@@ -177,9 +228,15 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
               f"{', '.join(c.name for c in graph.children)}", file=log, flush=True)
         deadline = time.monotonic() + timeout
         done_seen: float | None = None
+        last_cycles, last_progress = -1, time.monotonic()
         while True:
             executor.spin_once(timeout_sec=0.1)
             _check_children(graph, restart=True, env=env, log=log)
+            if monitor.cycles != last_cycles:
+                last_cycles, last_progress = monitor.cycles, time.monotonic()
+            elif time.monotonic() - last_progress > STALL_S:
+                raise RunError(f"the graph stalled: no cycle for {STALL_S:.0f} s after cycle "
+                               f"{monitor.cycles}; node logs are in {out / 'logs'}")
             c = recorder.counters
             progress.update(monitor.cycles, f"shifts {c.get('attention_shifts', 0)} "
                             f"new {c.get('new_objects', 0)} ids "
@@ -210,9 +267,15 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         for node in observers:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+        context.destroy()  # releases this process's DDS participant and its /dev/shm files
+        # A killed node's port files stay in use while its peers live, and nobody removes
+        # them afterwards: remove what the run left now that all its processes stopped.
+        clean_shm(shm_before, [os.getpid()])
         metrics = recorder.close(time.monotonic() - t0)
         metrics_status = {"status": status, "killed_on_stop": killed,
-                          "restarts": {c.name: c.restarts for c in graph.children if c.restarts}}
+                          "restarts": {c.name: c.restarts for c in graph.children if c.restarts},
+                          "deaths": graph.deaths,
+                          "duplicate_reports": recorder.duplicates}
         with open(out / "run_status.json", "w") as fh:
             json.dump(metrics_status, fh, indent=2)
     return metrics
@@ -227,16 +290,24 @@ def _complete(recorder: RunRecorder, stable_cycles: int) -> bool:
 
 def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = None,
                     log: TextIO = sys.stdout) -> None:
-    """Report (and restart) a node process that died."""
+    """Report a node process that died, clean what it left in /dev/shm and restart it.
+
+    A node that exits with code 2 refused its setup (bad world file, parameter, memory
+    file): restarting it would only fail again, so the run ends with its one line.
+    """
     for child in graph.dead():
         code = child.proc.returncode if child.proc is not None else None
-        if not restart or child.restarts >= MAX_RESTARTS or code == 2:
-            raise RunError(f"node {child.name} exited with code {code}:\n{child.log_tail()}")
-        child.restarts += 1
-        print(f"node {child.name} died (exit {code}); restarting it "
-              f"({child.restarts}/{MAX_RESTARTS})", file=log, flush=True)
-        assert env is not None
-        child.start(env)
+        reason = child.exit_reason()
+        if code == 2:
+            tail = child.log_tail(1) or reason
+            raise RunError(f"node {child.name} refused to start: {tail}")
+        if not restart or child.restarts >= MAX_RESTARTS:
+            raise RunError(f"node {child.name} died ({reason}) and was restarted "
+                           f"{child.restarts} times already:\n{child.log_tail()}")
+        removed = graph.restart(child)
+        print(f"node {child.name} died ({reason}); removed {len(removed)} files it left in "
+              f"/dev/shm; restarted it ({child.restarts}/{MAX_RESTARTS})", file=log,
+              flush=True)
 
 
 __all__ = ["RunError", "RunOptions", "StopRequested", "run_graph"]

@@ -2,29 +2,45 @@
 
 Run alone: ``roger-memory --ros-args -p memory_file:=runs/ltm.pt`` (or ``python -m
 roger_memory.memory_node``). With ``memory_file`` set, the long-term memory is loaded at
-start and written atomically after every store.
+start and written atomically after every store, before the reply goes out.
+
+Re-sent requests (the attention node re-sends one left unanswered, e.g. while this node was
+restarting) are answered once: the last replies are kept by request id, and a STORE whose
+features an exemplar already holds exactly (it was stored, then the node died before it
+could reply) is answered with that address instead of storing the object twice.
 """
 
 from __future__ import annotations
 
 import sys
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rclpy
 import torch
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor
-from roger_common.conversions import LATCHED, RELIABLE, declare_config, guard_parameters, \
-    time_to_seconds
+from roger_common.conversions import (
+    LATCHED,
+    RELIABLE,
+    declare_config,
+    guard_parameters,
+    time_to_seconds,
+)
 from roger_common.errors import MessageError, RogerError
-from roger_common.types import MemoryOp
+from roger_common.types import MatchOutcome, MatchResult, MemoryOp
+from roger_common.types import MemoryRequest as CoreRequest
 
 from roger_interfaces.msg import MemoryRequest, MemoryResult
 from roger_memory import conversions as conv
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
+
+#: Replies kept for re-sent requests.
+REPLIES_KEPT = 32
 
 
 class MemoryNode(Node):
@@ -43,10 +59,13 @@ class MemoryNode(Node):
         self.path = Path(path) if path else None
         seed = int(self.get_parameter("seed").value)
         if self.path is not None and self.path.exists():
+            # A corrupt file stops the node with one line (MemoryFileError, in main); the
+            # orchestrator checks the file before it starts anything.
             self.memory = AssociativeMemory.load(self.path, self.config)
             self.get_logger().info(f"loaded {self.memory.size} objects from {self.path}")
         else:
             self.memory = AssociativeMemory(self.config, seed=seed)
+        self._replies: OrderedDict[int, MemoryResult] = OrderedDict()
         self.pub_result = self.create_publisher(MemoryResult, "/roger/memory/result", RELIABLE)
         self.pub_learned = self.create_publisher(MemoryResult, "/roger/memory/learned", LATCHED)
         self.create_subscription(MemoryRequest, "/roger/memory/request", self.on_request,
@@ -60,19 +79,45 @@ class MemoryNode(Node):
         except MessageError as exc:
             self.get_logger().error(f"memory request refused: {exc}")
             return
+        cached = self._replies.get(req.request_id)
+        if cached is not None and cached.op == int(req.op):
+            self.get_logger().warn(f"request {req.request_id} received again: same answer")
+            self.pub_result.publish(cached)
+            return
+        stored = self._stored_address(req) if req.op == MemoryOp.STORE else None
         try:
-            result = self.memory.handle(req)
+            result = (self.memory.handle(req) if stored is None
+                      else MatchResult(MatchOutcome.NEW, stored, 1.0))
         except MessageError as exc:
             self.get_logger().error(f"memory request {req.request_id} refused: {exc}")
             return
         reply = conv.result_to_msg(req.request_id, req.op, result, self.memory.size, stamp)
-        if req.op == MemoryOp.STORE:
+        if req.op == MemoryOp.STORE and stored is None:
             if self.path is not None:
-                self.memory.save(self.path)
+                try:
+                    self.memory.save(self.path)
+                except OSError as exc:
+                    self.get_logger().error(f"could not write {self.path}: {exc}; the object "
+                                            "is kept in RAM only")
             self.pub_learned.publish(reply)
             self.get_logger().info(f"stored object at address {result.address} "
                                    f"({self.memory.size} in memory)")
+        self._replies[req.request_id] = reply
+        while len(self._replies) > REPLIES_KEPT:
+            self._replies.popitem(last=False)
         self.pub_result.publish(reply)
+
+    def _stored_address(self, req: CoreRequest) -> int | None:
+        """Address of an exemplar equal to the request's pattern (a STORE sent again)."""
+        for address in range(self.memory.size):
+            ex, kn = self.memory.exemplars(address), self.memory.exemplar_known(address)
+            same = np.all(kn == req.known, axis=1) & np.all(
+                np.where(req.known, ex == req.features, True), axis=1)
+            if np.any(same):
+                self.get_logger().warn(f"store {req.request_id}: already stored at address "
+                                       f"{address} (a re-sent request)")
+                return address
+        return None
 
 
 def main(args: list[str] | None = None) -> None:

@@ -37,20 +37,31 @@ def image_to_array(msg: Image) -> np.ndarray:
 
 
 def camera_from_info(msg: CameraInfo) -> CameraModel:
-    """The pinhole model of a CameraInfo (fx from K)."""
-    return CameraModel(width=int(msg.width), height=int(msg.height), focal_px=float(msg.k[0]))
+    """The pinhole model of a CameraInfo (fx from K). Raises MessageError when unusable."""
+    focal = float(msg.k[0])
+    if msg.width <= 0 or msg.height <= 0 or not math.isfinite(focal) or focal <= 0:
+        raise MessageError(f"camera info {msg.width}x{msg.height} with focal length {focal} "
+                           "is unusable (need a positive size and focal length)")
+    return CameraModel(width=int(msg.width), height=int(msg.height), focal_px=focal)
 
 
 def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
-    """Left and right eye poses of a StereoGeometry message."""
+    """Left and right eye poses of a StereoGeometry message. Raises MessageError on NaN."""
     def one(p):  # type: ignore[no-untyped-def]
-        return EyePose(position=np.array(point_tuple(p.position)),
+        pose = EyePose(position=np.array(point_tuple(p.position)),
                        rotation=quaternion_to_rotation(p.orientation))
+        if not (np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.rotation))):
+            raise MessageError(f"stereo geometry of goal {msg.goal_id}: eye pose not finite")
+        return pose
     return one(msg.left_eye), one(msg.right_eye)
 
 
 def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
-    """A haptic message as a core reading."""
+    """A haptic message as a core reading. Raises MessageError on a NaN or negative weight."""
+    if not math.isfinite(msg.weight) or msg.weight < 0:
+        raise MessageError(f"haptic reading of goal {msg.goal_id}: weight {msg.weight} unusable")
+    if not all(math.isfinite(v) for v in point_tuple(msg.position)):
+        raise MessageError(f"haptic reading of goal {msg.goal_id}: position not finite")
     return HapticReading(arm=int(msg.arm), contact=bool(msg.contact),
                          position=point_tuple(msg.position), weight=float(msg.weight))
 
@@ -92,9 +103,13 @@ def rois_to_msg(rois: list[Roi], stamp: float, goal_id: int) -> RoiArray:
 
 def msg_to_rois(msg: RoiArray) -> list[Roi]:
     """A RoiArray as core Rois (raises MessageError on the first malformed ROI)."""
+    ids = [int(r.id) for r in msg.rois]
+    if len(set(ids)) != len(ids):
+        raise MessageError(f"ROI array of goal {msg.goal_id}: ROI ids repeat ({ids})")
     return [msg_to_roi(r) for r in msg.rois]
 
 
 def mapped_positions(msg: SpatialMap) -> list[tuple[float, float, float]]:
-    """Positions of the mapped entries of a spatial map."""
-    return [point_tuple(e.position) for e in msg.entries if e.mapped]
+    """Positions of the mapped entries of a spatial map (entries with NaN are skipped)."""
+    return [p for p in (point_tuple(e.position) for e in msg.entries if e.mapped)
+            if all(math.isfinite(v) for v in p)]

@@ -11,8 +11,14 @@ from typing import Any
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, \
-    guard_parameters, time_to_seconds
+from roger_common.conversions import (
+    IMAGES,
+    LATCHED,
+    RELIABLE,
+    declare_config,
+    guard_parameters,
+    time_to_seconds,
+)
 from roger_common.errors import MessageError, RogerError
 from roger_common.types import HapticReading, StereoFrame
 from sensor_msgs.msg import CameraInfo, Image
@@ -52,7 +58,11 @@ class PerceptionNode(Node):
 
     def on_haptic(self, msg: HapticReadingMsg) -> None:
         """Keep the haptic reading for the frame of the same goal."""
-        self._haptic[int(msg.goal_id)] = conv.msg_to_haptic(msg)
+        try:
+            self._haptic[int(msg.goal_id)] = conv.msg_to_haptic(msg)
+        except MessageError as exc:
+            self.get_logger().error(f"haptic reading dropped: {exc}")
+            return
         while len(self._haptic) > MAX_PENDING:
             self._haptic.pop(next(iter(self._haptic)))
 
@@ -72,17 +82,18 @@ class PerceptionNode(Node):
 
     def _process(self, parts: dict[str, Any]) -> None:
         geometry: StereoGeometry = parts["geometry"]
-        camera = conv.camera_from_info(parts["info"])
         try:
+            camera = conv.camera_from_info(parts["info"])
+            left_pose, right_pose = conv.poses_from_geometry(geometry)
             left = conv.image_to_array(parts["left"])
             right = conv.image_to_array(parts["right"])
             if left.shape != right.shape or left.shape != (camera.height, camera.width):
                 raise MessageError(f"stereo pair sizes {left.shape} / {right.shape} do not "
                                    f"match the camera ({camera.height}, {camera.width})")
         except MessageError as exc:
-            self.get_logger().error(f"stereo pair dropped: {exc}")
+            self.get_logger().error(f"stereo pair of goal {geometry.goal_id} dropped: {exc}; "
+                                    "the attention node will ask for it again")
             return
-        left_pose, right_pose = conv.poses_from_geometry(geometry)
         stamp = time_to_seconds(geometry.header.stamp)
         frame = StereoFrame(stamp=stamp, goal_id=int(geometry.goal_id), left=left, right=right,
                             camera=camera, left_pose=left_pose, right_pose=right_pose,

@@ -2,18 +2,27 @@
 
 Run alone: ``roger-sim --ros-args -p world:=worlds/table1.yaml`` (or ``python -m
 roger_sim.sim_node``). Topics are listed in the README's node-graph table.
+
+Resuming after a crash (docs/reliability.md): when the orchestrator sets ``ROGER_STATE_DIR``,
+the node writes ``sim.json`` there atomically after every goal and world edit: the world as
+it stands (objects moved at run time included) and the physics step count. A restarted node
+renders that world and goes on from that simulated time, so stamps never run backwards.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor
+from roger_common.atomic import atomic_write_bytes
 from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, guard_parameters
 from roger_common.errors import RogerError
 from roger_common.types import Action, StereoFrame
@@ -34,10 +43,12 @@ from roger_interfaces.srv import EditWorld
 from roger_sim import conversions as conv
 from roger_sim.config import SimConfig
 from roger_sim.simulator import Simulator
-from roger_sim.world import load_world, object_from_dict
+from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
 
 #: Eye separation (metres), for the right CameraInfo's projection matrix.
 BASELINE = 0.16
+#: Environment variable naming the folder of the resume state (set by the orchestrator).
+STATE_DIR_ENV = "ROGER_STATE_DIR"
 
 
 class SimNode(Node):
@@ -53,9 +64,17 @@ class SimNode(Node):
         guard_parameters(self, SimConfig, "", lambda: self.config)
         world_path = str(self.get_parameter("world").value)
         self.world = load_world(world_path)
-        self.sim = Simulator(self.world, self.config, seed=int(self.get_parameter("seed").value))
+        state_dir = os.environ.get(STATE_DIR_ENV, "")
+        self.state_path = Path(state_dir) / "sim.json" if state_dir else None
+        saved = self._load_state()
+        world = saved[0] if saved is not None else self.world
+        self.sim = Simulator(world, self.config, seed=int(self.get_parameter("seed").value))
+        if saved is not None:
+            # Go on from the saved simulated time (Simulator has no public setter for it).
+            self.sim._steps = saved[1]
         self._last_goal_id = -1
         self._last_frame: StereoFrame | None = None
+        self._last_haptic_msg: HapticReading | None = None
         self._wall_start = time.monotonic()
 
         self.pub_clock = self.create_publisher(Clock, "/clock", RELIABLE)
@@ -90,24 +109,29 @@ class SimNode(Node):
         # Goal 0 is the initial look, which may be asked for repeatedly.
         if msg.goal_id > 0 and msg.goal_id == self._last_goal_id and self._last_frame is not None:
             self.get_logger().warn(f"goal {msg.goal_id} received again: re-sending its frame")
+            if self._last_haptic_msg is not None:
+                self.pub_haptic.publish(self._last_haptic_msg)
             self._publish_frame(self._last_frame)
             return
         try:
             goal = conv.msg_to_goal(msg)
-        except ValueError as exc:
+            report, frame = self.sim.run_goal(goal)
+        except (RogerError, ValueError) as exc:
             self.get_logger().error(f"goal {msg.goal_id} refused: {exc}")
             return
-        report, frame = self.sim.run_goal(goal)
+        self._save_state()
         stamp = self.sim.sim_time
         self._pace(stamp)
         self._last_goal_id, self._last_frame = goal.goal_id, frame
+        self._last_haptic_msg = None
         self._publish_clock()
         self.pub_status.publish(conv.controller_status_msg(report.states, stamp))
         self.pub_convergence.publish(conv.convergence_msg(report, goal.action, stamp))
         names, pos, vel, eff = self.sim.joint_state()
         self.pub_joints.publish(conv.joint_state_msg(names, pos, vel, eff, stamp))
         if goal.action == Action.HAPTIC_IMPROVEMENT and frame.haptic is not None:
-            self.pub_haptic.publish(conv.haptic_msg(frame.haptic, goal.goal_id, stamp))
+            self._last_haptic_msg = conv.haptic_msg(frame.haptic, goal.goal_id, stamp)
+            self.pub_haptic.publish(self._last_haptic_msg)
             self._publish_ground_truth()
         self._publish_frame(frame)
 
@@ -158,7 +182,30 @@ class SimNode(Node):
         else:
             raise ValueError(f"unknown world edit op {edit.op} (0 add, 1 remove, 2 move)")
         self._publish_ground_truth()
+        self._save_state()
         return done
+
+    # -- resuming after a restart ------------------------------------------------------
+    def _save_state(self) -> None:
+        """Write the current world and step count atomically (only with ROGER_STATE_DIR)."""
+        if self.state_path is not None:
+            state = {"world": world_to_dict(self.sim.world), "steps": self.sim.physics_steps}
+            atomic_write_bytes(self.state_path, json.dumps(state).encode())
+
+    def _load_state(self) -> tuple[Any, int] | None:
+        """The saved world and step count, or None (no state, or an unusable one)."""
+        if self.state_path is None or not self.state_path.exists():
+            return None
+        try:
+            state = json.loads(self.state_path.read_text())
+            world = parse_world(state["world"], str(self.state_path))
+            steps = int(state["steps"])
+        except (OSError, ValueError, KeyError, TypeError, RogerError) as exc:
+            self.get_logger().error(f"resume state ignored, starting from the world file: "
+                                    f"{exc}")
+            return None
+        self.get_logger().warn(f"resuming at step {steps} with the world of {self.state_path}")
+        return world, steps
 
     def on_world_edit(self, msg: WorldEdit) -> None:
         """Topic form of a world edit: errors are logged, the node goes on."""
