@@ -18,8 +18,10 @@ exemplar, so old recalls stay intact (see docs/memory.md).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
+from collections.abc import Iterator
 
 import numpy as np
 import torch
@@ -45,6 +47,27 @@ def encode(features: np.ndarray, known: np.ndarray) -> np.ndarray:
     x = np.atleast_2d(np.asarray(features, np.float32))
     k = np.atleast_2d(np.asarray(known, bool))
     return np.concatenate([np.where(k, x, 0.0), k], axis=1).astype(np.float32)
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """Run torch on one intra-op thread inside the block, then restore the thread count.
+
+    The network is tiny (a 128 x 16 batch, 64 hidden units): with two or more threads every
+    operation pays for waking and joining the pool, which made a replay step about ten
+    times slower (6.6 ms instead of 0.6 ms on a 2-core machine, docs/performance.md). One
+    thread is also what the memory node uses, so the graph and the in-process core loop
+    compute the same floats.
+    """
+    threads = torch.get_num_threads()
+    if threads == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def winner_take_all(logits: torch.Tensor) -> tuple[int, float, torch.Tensor]:
@@ -116,14 +139,17 @@ class AssociativeNetwork(nn.Module):
         """
         if self.n_addresses == 0:
             return -1, 0.0, np.zeros(0, np.float32)
-        logits = self(torch.from_numpy(encode(features, known)))[0]
-        winner, confidence, shares = winner_take_all(logits)
+        with one_thread():
+            logits = self(torch.from_numpy(encode(features, known)))[0]
+            winner, confidence, shares = winner_take_all(logits)
         return winner, confidence, shares.numpy()
 
     @torch.no_grad()
     def shares(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
         """Softmax shares of every unit for many patterns at once, shape (n, n_addresses)."""
-        return torch.softmax(self(torch.from_numpy(encode(features, known))), dim=1).numpy()
+        with one_thread():
+            return torch.softmax(self(torch.from_numpy(encode(features, known))),
+                                 dim=1).numpy()
 
 
 def _new_linear(n_in: int, n_out: int, generator: torch.Generator) -> nn.Linear:
@@ -171,6 +197,13 @@ def train_replay(
     Returns:
         Number of steps taken.
     """
+    with one_thread():
+        return _train_replay(network, exemplars, known, addresses, focus, config, rng)
+
+
+def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.ndarray,
+                  addresses: np.ndarray, focus: int, config: MemoryConfig,
+                  rng: np.random.Generator) -> int:
     n = len(exemplars)
     focus_idx = np.flatnonzero(addresses == focus)
     maskable = np.array([name in config.maskable_features for name in FEATURE_NAMES])

@@ -113,29 +113,47 @@ class JointServo:
         self.state = ControllerState.FAILED
         self._settled = 0
 
-    def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Desired joint accelerations qdd* for the current joint state.
+    def target(self, q: np.ndarray) -> np.ndarray:
+        """The joint positions the servo drives to: its reference, or the pose it holds.
 
         Without a reference (or after a failure) the servo holds the pose it had when
         it was first asked, so a failed or idle effector does not fall under gravity.
         """
+        if self.reference is not None:
+            return self.reference
+        if self._hold is None:
+            self._hold = np.array(q, float)
+        return self._hold
+
+    def acceleration(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Desired joint accelerations qdd* for the current joint state."""
         q = np.asarray(q, float)
         qd = np.asarray(qd, float)
-        target = self.reference
-        if target is None:
-            if self._hold is None:
-                self._hold = q.copy()
-            target = self._hold
-        return self.kp * (target - q) - self.kd * qd
+        return self.kp * (self.target(q) - q) - self.kd * qd
+
+    @property
+    def tracking(self) -> bool:
+        """True while the status depends on the joints (TRANSIENT or CONVERGED)."""
+        return self.reference is not None and self.state not in (
+            ControllerState.NO_REFERENCE, ControllerState.FAILED)
 
     def update_status(self, q: np.ndarray, qd: np.ndarray) -> ControllerState:
         """Advance the status by one physics step after the joints moved to ``q``, ``qd``."""
-        if self.state in (ControllerState.NO_REFERENCE, ControllerState.FAILED) \
-                or self.reference is None:
+        if not self.tracking:
             return self.state
-        err = np.abs(self.reference - np.asarray(q, float))
-        speed = np.abs(np.asarray(qd, float))
-        if np.all(err < self.tolerance) and np.all(speed < self.velocity_tolerance):
+        assert self.reference is not None
+        err = abs(self.reference - np.asarray(q, float))
+        speed = abs(np.asarray(qd, float))
+        return self.advance(bool((err < self.tolerance).all()
+                                 and (speed < self.velocity_tolerance).all()))
+
+    def advance(self, within: bool) -> ControllerState:
+        """Advance the status by one physics step, given whether every joint is within
+        ``tolerance`` and slower than ``velocity_tolerance`` (:meth:`update_status`; the
+        simulator computes ``within`` for all servos at once)."""
+        if not self.tracking:
+            return self.state
+        if within:
             self._settled += 1
         else:
             self._settled = 0

@@ -125,6 +125,9 @@ class HapticRoutine:
         hand = pb.getLinkState(self.robot.body, self.robot.hand_link[self.arm],
                                computeForwardKinematics=True, physicsClientId=self.client)
         obj_pos, obj_orn = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        # Objects at rest sleep (Simulator._spawn); one held by the hand must move with it.
+        pb.changeDynamics(body, -1, activationState=pb.ACTIVATION_STATE_WAKE_UP,
+                          physicsClientId=self.client)
         # Constraint frames of a multibody link are relative to its centre of mass.
         inv_pos, inv_orn = pb.invertTransform(hand[0], hand[1])
         rel_pos, rel_orn = pb.multiplyTransforms(inv_pos, inv_orn, obj_pos, obj_orn)

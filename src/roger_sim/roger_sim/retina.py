@@ -9,6 +9,8 @@ the horizon does not make an edge. Pixel noise is added by the simulator, not he
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pybullet as pb
 from roger_common.types import CameraModel, EyePose
@@ -42,6 +44,8 @@ class Retina:
         projection[8] += 1.0 / n
         projection[9] += 1.0 / n
         self._projection = projection
+        #: Wall seconds spent inside pybullet's renderer by this retina (the floor).
+        self.seconds = 0.0
 
     def render(self, pose: EyePose) -> tuple[np.ndarray, np.ndarray]:
         """Render one retina.
@@ -61,6 +65,7 @@ class Retina:
                                     cameraTargetPosition=(eye + forward).tolist(),
                                     cameraUpVector=up.tolist(), physicsClientId=self.client)
         cfg = self.config
+        t0 = time.perf_counter()
         _, _, rgba, _, seg = pb.getCameraImage(
             n, n, viewMatrix=view, projectionMatrix=self._projection,
             lightDirection=self.light_direction, lightColor=[1.0, 1.0, 1.0],
@@ -68,6 +73,7 @@ class Retina:
             lightAmbientCoeff=cfg.light_ambient, lightDiffuseCoeff=cfg.light_diffuse,
             lightSpecularCoeff=cfg.light_specular, renderer=pb.ER_TINY_RENDERER,
             physicsClientId=self.client)
+        self.seconds += time.perf_counter() - t0
         rgb = np.asarray(rgba, np.uint8).reshape(n, n, 4)[:, :, :3]
         intensity = rgb.astype(np.float32).sum(axis=2) / np.float32(3.0 * 255.0)
         ids = np.asarray(seg, np.int32).reshape(n, n)

@@ -94,8 +94,21 @@ class Simulator:
                 np.array([JOINT_LIMITS[j][1] for j in joints]),
                 cfg.goal_timeout_s, tol, cfg.velocity_tolerance, cfg.settle_steps)
         self._effort_limit = np.array([JOINT_EFFORT[n] for n in self._names])
+        self._effort_low = -self._effort_limit
+        self._servo_dofs = [(servo, np.array(self._dofs(name), np.intp))
+                            for name, servo in self._servos.items()]
+        self._servo_list = [servo for servo, _ in self._servo_dofs]
+        order = np.concatenate([d for _, d in self._servo_dofs])
+        self._bank_sizes = np.array([len(d) for _, d in self._servo_dofs])
+        self._bank_starts: np.ndarray | None = None
+        if np.array_equal(order, np.arange(len(self._names))):
+            self._bank_starts = np.concatenate([[0], np.cumsum(self._bank_sizes)[:-1]])
+        self._bank_kp = np.repeat([s.kp for s in self._servo_list], self._bank_sizes)
+        self._bank_kd = np.repeat([s.kd for s in self._servo_list], self._bank_sizes)
+        self._physics_seconds = 0.0
         self._reset_pose()
         self._factory = ObjectFactory(c)
+        self._label_lut: np.ndarray | None = None
         self._specs: dict[str, ObjectSpec] = {}
         self._bodies: dict[str, int] = {}
         self._world_meta = world
@@ -133,6 +146,15 @@ class Simulator:
     def physics_steps(self) -> int:
         """Physics steps taken since the start."""
         return self._steps
+
+    @property
+    def floor_seconds(self) -> dict[str, float]:
+        """Wall seconds spent so far in pybullet's integrator and renderer alone.
+
+        ``physics``: inside ``stepSimulation``; ``render``: inside ``getCameraImage``. Their
+        sum over a control cycle is its physical floor (``roger bench``).
+        """
+        return {"physics": self._physics_seconds, "render": self._retina.seconds}
 
     @property
     def last_haptic(self) -> HapticReading | None:
@@ -175,7 +197,8 @@ class Simulator:
 
     def _read(self) -> tuple[np.ndarray, np.ndarray]:
         states = pb.getJointStates(self.robot.body, self._indices, physicsClientId=self.client)
-        return (np.array([s[0] for s in states], float), np.array([s[1] for s in states], float))
+        both = np.array([s[:2] for s in states], float)
+        return both[:, 0].copy(), both[:, 1].copy()
 
     def _dofs(self, controller: str) -> list[int]:
         return [self.robot.dof_index[j] for j in CONTROLLER_JOINTS[controller]]
@@ -185,25 +208,44 @@ class Simulator:
     def _step(self, routine: HapticRoutine | None) -> None:
         """One physics step: statuses, haptic routine, computed torques, integration."""
         q, qd = self._read()
-        for name, servo in self._servos.items():
-            dofs = self._dofs(name)
-            servo.update_status(q[dofs], qd[dofs])
+        servos = self._servo_list
+        if self._bank_starts is None:
+            for servo, dofs in self._servo_dofs:
+                servo.update_status(q[dofs], qd[dofs])
+        else:
+            # Every servo's status test at once (the dofs are contiguous, servo by servo):
+            # the same comparisons as JointServo.update_status, one numpy call each.
+            refs = np.concatenate([s.reference if s.reference is not None else q[d]
+                                   for s, d in self._servo_dofs])
+            tol = np.repeat([s.tolerance for s in servos], self._bank_sizes)
+            vtol = np.repeat([s.velocity_tolerance for s in servos], self._bank_sizes)
+            ok = (abs(refs - q) < tol) & (abs(qd) < vtol)
+            within = np.logical_and.reduceat(ok, self._bank_starts).tolist()
+            for servo, w in zip(servos, within, strict=True):
+                servo.advance(w)
+        q_list = q.tolist()
         if routine is not None and not routine.done:
-            zeros = [0.0] * len(q)
+            zeros = [0.0] * len(q_list)
             gravity = np.array(pb.calculateInverseDynamics(
-                self.robot.body, q.tolist(), zeros, zeros, physicsClientId=self.client))
+                self.robot.body, q_list, zeros, zeros, physicsClientId=self.client))
             routine.on_step(q[self._dofs(routine.arm)], self._applied, gravity)
-        qdd = np.zeros(len(q))
-        for name, servo in self._servos.items():
-            dofs = self._dofs(name)
-            qdd[dofs] = servo.acceleration(q[dofs], qd[dofs])
+        if self._bank_starts is None:
+            qdd = np.zeros(len(q_list))
+            for servo, dofs in self._servo_dofs:
+                qdd[dofs] = servo.acceleration(q[dofs], qd[dofs])
+        else:
+            # qdd* = wn^2 (q_ref - q) - 2 wn qd for every joint at once (controllers.py).
+            target = np.concatenate([s.target(q[d]) for s, d in self._servo_dofs])
+            qdd = self._bank_kp * (target - q) - self._bank_kd * qd
         # Computed torque: tau = M(q) qdd* + C(q, qd) + g(q); g(q) is the gravity compensation.
-        tau = np.array(pb.calculateInverseDynamics(self.robot.body, q.tolist(), qd.tolist(),
+        tau = np.array(pb.calculateInverseDynamics(self.robot.body, q_list, qd.tolist(),
                                                    qdd.tolist(), physicsClientId=self.client))
-        tau = np.clip(tau, -self._effort_limit, self._effort_limit)
+        np.clip(tau, self._effort_low, self._effort_limit, out=tau)
         pb.setJointMotorControlArray(self.robot.body, self._indices, pb.TORQUE_CONTROL,
                                      forces=tau.tolist(), physicsClientId=self.client)
+        t0 = time.perf_counter()
         pb.stepSimulation(physicsClientId=self.client)
+        self._physics_seconds += time.perf_counter() - t0
         self._applied = tau
         self._steps += 1
 
@@ -304,7 +346,7 @@ class Simulator:
             raise ValueError(f"exposures must be an integer >= 1, got {exposures!r}")
         poses = {side: self.robot.eye_pose(side) for side in ("left", "right")}
         label_names = tuple(self._bodies)
-        lut = {body: i for i, body in enumerate(self._bodies.values())}
+        lut = self._labels_lut()
         images, labels = {}, {}
         sigma = self.config.pixel_noise / math.sqrt(exposures)
         for side in ("left", "right"):
@@ -313,16 +355,25 @@ class Simulator:
                 noise = self._pixel_rng.normal(0.0, sigma, intensity.shape).astype(np.float32)
                 intensity = np.clip(intensity + noise, 0.0, 1.0, dtype=np.float32)
             images[side] = intensity
-            lab = np.full(ids.shape, -1, np.int32)
-            for body, index in lut.items():
-                lab[ids == body] = index
-            labels[side] = lab
+            # One table lookup per pixel (body id + 1 -> label; -1, the sky, -> -1) instead
+            # of one pass over the image per object.
+            labels[side] = lut[np.where((ids >= -1) & (ids < len(lut) - 1), ids + 1, 0)]
         return StereoFrame(stamp=self.sim_time, goal_id=goal_id, left=images["left"],
                            right=images["right"], camera=self.camera,
                            left_pose=poses["left"], right_pose=poses["right"],
                            exposures=exposures, haptic=self.last_haptic,
                            left_labels=labels["left"], right_labels=labels["right"],
                            label_names=label_names)
+
+    def _labels_lut(self) -> np.ndarray:
+        """Table from pybullet body id + 1 to label index (-1 for the sky and the robot)."""
+        if self._label_lut is None:
+            top = max([self.robot.body, self._ground, *self._bodies.values()]) + 2
+            lut = np.full(top, -1, np.int32)
+            for index, body in enumerate(self._bodies.values()):
+                lut[body + 1] = index
+            self._label_lut = lut
+        return self._label_lut
 
     def run_goal(self, goal: Goal) -> tuple[ControllerReport, StereoFrame]:
         """Execute ``goal`` then render (integrating exposures after a visual improvement)."""
@@ -334,8 +385,16 @@ class Simulator:
     # ---------------------------------------------------------------- world at run time
 
     def _spawn(self, spec: ObjectSpec) -> None:
-        self._bodies[spec.name] = self._factory.create(spec)
+        body = self._factory.create(spec)
+        # An object at rest goes to sleep (Bullet's deactivation: below its sleeping speeds
+        # for 2 s) and costs no contact solving until something touches it. Without this
+        # every resting object was solved every step: 0.018 ms per object per step, the
+        # physics 7x slower with 64 objects than with 4 (docs/performance.md).
+        pb.changeDynamics(body, -1, activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING,
+                          physicsClientId=self.client)
+        self._bodies[spec.name] = body
         self._specs[spec.name] = spec
+        self._label_lut = None
 
     def _validated(self, spec: ObjectSpec, source: str) -> ObjectSpec:
         entry = world_to_dict(WorldSpec(objects=(spec,)))["objects"][0]
@@ -367,6 +426,7 @@ class Simulator:
                            f"known: {', '.join(self._bodies) or 'none'}")
         self._factory.remove(self._bodies.pop(name))
         del self._specs[name]
+        self._label_lut = None
 
     def move_object(self, name: str, position_xy: tuple[float, float],
                     yaw: float | None = None) -> None:
@@ -387,6 +447,8 @@ class Simulator:
                           yaw=current_yaw if yaw is None else float(yaw), texture=old.texture)
         spec = self._validated(spec, "move_object")
         self._factory.move(self._bodies[name], spec)
+        pb.changeDynamics(self._bodies[name], -1,
+                          activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=self.client)
         self._specs[name] = spec
 
     def close(self) -> None:
