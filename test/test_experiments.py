@@ -51,3 +51,24 @@ def test_second_run_with_the_first_runs_memory_stores_nothing_new(tmp_path):
     first = {r.true_object: r.address for r in rec1.rows if r.outcome == "stored"}
     second = [(r.true_object, r.address) for r in rec2.rows if r.outcome == "mapped"]
     assert second and all(first[obj] == addr for obj, addr in second), (first, second)
+
+
+def test_until_complete_on_an_unseen_world_visits_every_object(no_leaks, tmp_path, ros_domain):
+    import yaml
+    from roger_sim.world import world_to_dict
+    from roger_sim.worldgen import random_world
+
+    world = random_world(3, 2, seed=23, size_range=(0.08, 0.14))
+    path = tmp_path / "unseen.yaml"
+    path.write_text(yaml.safe_dump(world_to_dict(world), sort_keys=False))
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "roger_bringup.cli", "run", "--world", str(path),
+         "--policy", "qlearning", "--until-complete", "--stable-cycles", "15",
+         "--out", str(out), "--quiet", "--domain-id", str(ros_domain), "--timeout", "400"],
+        capture_output=True, text=True, timeout=500)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    status = json.loads((out / "run_status.json").read_text())
+    assert status["status"] == "complete", status
+    assert metrics["objects_visited"] == metrics["objects_in_world"] == 6
