@@ -23,20 +23,18 @@ import dataclasses
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
 from roger_common.atomic import atomic_write_bytes
 from roger_common.conversions import (
+    spin_node,
     IMAGES,
     LATCHED,
     RELIABLE,
@@ -444,21 +442,7 @@ class AttentionNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``roger-attention``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = AttentionNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError) as exc:
-        print(f"roger-attention: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    spin_node(AttentionNode, "roger-attention", args)
 
 if __name__ == "__main__":
     main()

@@ -13,17 +13,14 @@ Run alone: ``python -m roger_bringup.view_node --ros-args -p out_dir:=runs/view`
 
 from __future__ import annotations
 
-import sys
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE
+from roger_common.conversions import spin_node, IMAGES, LATCHED, RELIABLE
 from roger_common.errors import MessageError, RogerError
 from roger_common.types import Action, Roi
 from roger_perception.conversions import image_to_array, msg_to_rois
@@ -170,21 +167,7 @@ class ViewNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point: ``python -m roger_bringup.view_node``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ViewNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError) as exc:
-        print(f"roger-view: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    spin_node(ViewNode, "roger-view", args)
 
 if __name__ == "__main__":
     main()

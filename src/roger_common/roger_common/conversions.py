@@ -167,3 +167,42 @@ def guard_parameters(node: Node, config_cls: type[C], prefix: str, get_config: A
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(_check)
+
+
+def spin_node(factory: Any, prog: str, args: list[str] | None = None,
+              setup: Any = None) -> None:
+    """The ``main`` of every Roger node: init, build, spin, and shut down cleanly.
+
+    Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException) end the spin
+    quietly. A setup failure (a bad world file, parameter or memory file: RogerError,
+    ValueError, OSError) prints one line ``prog: message`` and exits with status 2, which
+    the orchestrator reads as "do not restart".
+
+    Args:
+        factory: Callable returning the node (called after ``rclpy.init``).
+        prog: Program name for the error line, e.g. ``"roger-sim"``.
+        args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
+        setup: Optional callable run once before ``rclpy.init``.
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from roger_common.errors import RogerError
+
+    if setup is not None:
+        setup()
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (RogerError, ValueError, OSError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

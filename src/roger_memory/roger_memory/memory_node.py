@@ -12,25 +12,23 @@ could reply) is answered with that address instead of storing the object twice.
 
 from __future__ import annotations
 
-import sys
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 import torch
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from roger_common.conversions import (
+    spin_node,
     LATCHED,
     RELIABLE,
     declare_config,
     guard_parameters,
     time_to_seconds,
 )
-from roger_common.errors import MessageError, RogerError
+from roger_common.errors import MessageError
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp
 from roger_common.types import MemoryRequest as CoreRequest
 
@@ -123,22 +121,7 @@ class MemoryNode(Node):
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``roger-memory``."""
     # One torch thread: the node is single-threaded and shares two cores with the others.
-    torch.set_num_threads(1)
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = MemoryNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError) as exc:
-        print(f"roger-memory: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    spin_node(MemoryNode, "roger-memory", args, setup=lambda: torch.set_num_threads(1))
 
 if __name__ == "__main__":
     main()

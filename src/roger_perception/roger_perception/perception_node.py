@@ -5,13 +5,11 @@ Run alone: ``roger-perception`` (or ``python -m roger_perception.perception_node
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from roger_common.conversions import (
+    spin_node,
     IMAGES,
     LATCHED,
     RELIABLE,
@@ -19,7 +17,7 @@ from roger_common.conversions import (
     guard_parameters,
     time_to_seconds,
 )
-from roger_common.errors import MessageError, RogerError
+from roger_common.errors import MessageError
 from roger_common.types import HapticReading, StereoFrame
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -105,21 +103,7 @@ class PerceptionNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``roger-perception``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PerceptionNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError) as exc:
-        print(f"roger-perception: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    spin_node(PerceptionNode, "roger-perception", args)
 
 if __name__ == "__main__":
     main()

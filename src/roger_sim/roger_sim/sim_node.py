@@ -13,17 +13,14 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from roger_common.atomic import atomic_write_bytes
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE, declare_config, guard_parameters
+from roger_common.conversions import spin_node, IMAGES, LATCHED, RELIABLE, declare_config, guard_parameters
 from roger_common.errors import RogerError
 from roger_common.types import Action, StereoFrame
 from rosgraph_msgs.msg import Clock
@@ -232,21 +229,7 @@ class SimNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``roger-sim``."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError, OSError) as exc:
-        print(f"roger-sim: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    spin_node(SimNode, "roger-sim", args)
 
 if __name__ == "__main__":
     main()
