@@ -60,7 +60,7 @@ test: bootstrap
 	@$(PY) -m pytest -q test
 
 lint: bootstrap
-	$(VENV)/bin/ruff check --line-length 99 src test bench
+	$(VENV)/bin/ruff check src test bench
 
 bench: bootstrap
 	$(VENV)/bin/roger bench --out runs/bench

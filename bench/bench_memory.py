@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 import torch
+
 from roger_common.types import FEATURE_DIM, MatchOutcome
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory

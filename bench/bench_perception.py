@@ -18,6 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
 from perception_synth import CENTRE_GAZE, make_frame, table1_objects
+
 from roger_perception.config import PerceptionConfig
 from roger_perception.log_filter import log_pyramid
 from roger_perception.perception import STAGES, Perception

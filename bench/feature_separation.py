@@ -1,37 +1,76 @@
-import numpy as np, itertools, sys
-from roger_sim.world import load_world
-from roger_sim.simulator import Simulator
-from roger_common.types import Goal, Action
-from roger_perception.perception import Perception
+"""How far apart are the features of one category and of two? (a measurement, not a test)
+
+For every object of a world: an attention shift, a visual and a haptic improvement on the
+real simulator; the ROI nearest the fixation is kept. Prints the features, then the RMS
+distances (over the features known in both) within a category (the same object at other
+stages, and other objects of the same category) and between categories. The memory can
+only identify repeats and tell categories apart if the first are clearly below the second.
+
+    .venv/bin/python bench/feature_separation.py worlds/two_rows.yaml [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+
+import numpy as np
+
 from roger_bringup.evaluation import object_under_window
-w=load_world(sys.argv[1]); s=Simulator(w, seed=1); p=Perception()
-cat={o.name:o.category() for o in w.objects}
-obs={}  # name -> list of (stage, features, known)
-gid=1
-for o in w.objects:
-  tgt=(o.position[0],o.position[1],0.08)
-  for act in (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT):
-    r,f=s.run_goal(Goal(gid,act,tgt)); gid+=1
-    rois=p.process(f)
-    # ROI nearest the fixation
-    best=min(rois,key=lambda x:(x.position[0]-tgt[0])**2+(x.position[1]-tgt[1])**2) if rois else None
-    if best is None: continue
-    t=object_under_window(f.left_labels,f.label_names,best.bbox)
-    obs.setdefault(o.name,[]).append((act.name[:3],best.features.copy(),best.known.copy(),t))
-def rms(a,b,ka,kb):
-  k=ka&kb; return float(np.sqrt(np.mean((a[k]-b[k])**2)))
-names=list(obs)
-print('per object, stage: features (I1 T1 S1 D W) true')
-for n in names:
-  for st,fv,kn,t in obs[n]:
-    print(f'  {n:7s} {st} I={fv[0]:.2f},{fv[1]:.2f},{fv[2]:.2f} T={fv[3]:.3f} S={fv[6]:.2f},{fv[7]:.2f},{fv[8]:.2f} D={fv[9]:.2f} W={fv[10]:.2f}{"" if kn[10] else "?"} true={t}')
-within=[];between=[]
-for a,b in itertools.combinations(names,2):
-  for (sa,fa,ka,_),(sb,fb,kb,_) in itertools.product(obs[a],obs[b]):
-    d=rms(fa,fb,ka,kb)
-    (within if cat[a]==cat[b] else between).append(d)
-for n in names:
-  for (sa,fa,ka,_),(sb,fb,kb,_) in itertools.combinations(obs[n],2):
-    within.append(rms(fa,fb,ka,kb))
-print('within-category RMS: median %.3f  p90 %.3f max %.3f' % (np.median(within), np.percentile(within,90), max(within)))
-print('between-category RMS: min %.3f  p10 %.3f median %.3f' % (min(between), np.percentile(between,10), np.median(between)))
+from roger_common.types import Action, Goal
+from roger_perception.perception import Perception
+from roger_sim.simulator import Simulator
+from roger_sim.world import load_world
+
+STAGES = (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT)
+
+
+def rms(a: np.ndarray, b: np.ndarray, ka: np.ndarray, kb: np.ndarray) -> float:
+    """RMS difference over the features known in both."""
+    k = ka & kb
+    return float(np.sqrt(np.mean((a[k] - b[k]) ** 2)))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("world")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    world = load_world(args.world)
+    sim, perception = Simulator(world, seed=args.seed), Perception()
+    category = {o.name: o.category() for o in world.objects}
+    obs: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
+    goal = 1
+    for o in world.objects:
+        target = (o.position[0], o.position[1], 0.08)
+        for action in STAGES:
+            _, frame = sim.run_goal(Goal(goal, action, target))
+            goal += 1
+            rois = perception.process(frame)
+            if not rois:
+                continue
+            roi = min(rois, key=lambda r: np.hypot(r.position[0] - target[0],
+                                                   r.position[1] - target[1]))
+            seen = object_under_window(frame.left_labels, frame.label_names, roi.bbox)
+            obs.setdefault(o.name, []).append((action.name[:3], roi.features.copy(),
+                                               roi.known.copy()))
+            f = roi.features
+            print(f"{o.name:8s} {action.name[:3]} I={f[0]:.2f},{f[1]:.2f},{f[2]:.2f} "
+                  f"T={f[3]:.3f} S={f[6]:.2f},{f[7]:.2f},{f[8]:.2f} D={f[9]:.2f} "
+                  f"W={f[10]:.2f}{'' if roi.known[10] else '?'} seen={seen}")
+    sim.close()
+    within, between = [], []
+    for a, b in itertools.combinations(obs, 2):
+        for (_, fa, ka), (_, fb, kb) in itertools.product(obs[a], obs[b]):
+            (within if category[a] == category[b] else between).append(rms(fa, fb, ka, kb))
+    for name in obs:
+        for (_, fa, ka), (_, fb, kb) in itertools.combinations(obs[name], 2):
+            within.append(rms(fa, fb, ka, kb))
+    print(f"within-category RMS: median {np.median(within):.3f} "
+          f"p90 {np.percentile(within, 90):.3f} max {max(within):.3f}")
+    print(f"between-category RMS: min {min(between):.3f} "
+          f"p10 {np.percentile(between, 10):.3f} median {np.median(between):.3f}")
+
+
+if __name__ == "__main__":
+    main()

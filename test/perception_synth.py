@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+
 from roger_common.geometry import look_rotation
 from roger_common.types import CameraModel, EyePose, HapticReading, StereoFrame
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+
 from roger_attention.config import AttentionConfig, SpatialMapConfig
 from roger_attention.controller import OUTCOMES, AttentionController, CyclePlan, CycleRecord
 from roger_attention.fsm_env import FsmEnv, train_qtable

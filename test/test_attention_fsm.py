@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from roger_attention.config import FsmEnvConfig, RewardConfig
 from roger_attention.fsm import (
     ACTIONS,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from roger_attention.config import SpatialMapConfig
 from roger_attention.spatial_map import SpatialMap
 from roger_common.errors import ConfigError

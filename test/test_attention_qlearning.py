@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from roger_attention.config import AttentionConfig, FsmEnvConfig, QLearningConfig
 from roger_attention.fsm import State, allowed_actions
 from roger_attention.fsm_env import FsmEnv, train_qtable

@@ -18,6 +18,7 @@ import rclpy
 from conftest import WORLDS
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+
 from roger_common.errors import MessageError, WorldFileError
 from roger_common.types import FEATURE_DIM
 from roger_sim.world import load_world
@@ -110,10 +111,10 @@ def image(encoding="32FC1", h=8, w=8, value=0.5):
 
 
 def test_perception_drops_unusable_stereo_pairs_and_keeps_running(no_leaks, ctx):
-    from roger_perception.perception_node import PerceptionNode
     from sensor_msgs.msg import CameraInfo
 
     from roger_interfaces.msg import HapticReading, StereoGeometry
+    from roger_perception.perception_node import PerceptionNode
     node = PerceptionNode(context=ctx)
     try:
         node.pub_rois = Sink()
@@ -141,9 +142,8 @@ def test_perception_drops_unusable_stereo_pairs_and_keeps_running(no_leaks, ctx)
 
 
 def test_repeated_or_nan_rois_are_refused():
-    from roger_perception.conversions import msg_to_rois
-
     from roger_interfaces.msg import Roi, RoiArray
+    from roger_perception.conversions import msg_to_rois
     good = Roi(id=1, features=[0.5] * FEATURE_DIM, known=[True] * FEATURE_DIM)
     with pytest.raises(MessageError, match="repeat"):
         msg_to_rois(RoiArray(rois=[good, good]))
@@ -154,9 +154,8 @@ def test_repeated_or_nan_rois_are_refused():
 
 
 def test_memory_refuses_bad_requests_and_answers_a_resent_store_once(no_leaks, ctx):
-    from roger_memory.memory_node import MemoryNode
-
     from roger_interfaces.msg import MemoryRequest
+    from roger_memory.memory_node import MemoryNode
     node = MemoryNode(context=ctx)
     try:
         node.pub_result, node.pub_learned = Sink(), Sink()
@@ -183,9 +182,9 @@ def test_memory_refuses_bad_requests_and_answers_a_resent_store_once(no_leaks, c
 
 
 def test_attention_ignores_unusable_messages_and_refuses_bad_parameters(no_leaks, ctx):
-    from roger_attention.attention_node import AttentionNode
     from sensor_msgs.msg import CameraInfo
 
+    from roger_attention.attention_node import AttentionNode
     from roger_interfaces.msg import MemoryResult, StereoGeometry
     node = AttentionNode(context=ctx)
     try:
@@ -207,9 +206,8 @@ def test_attention_ignores_unusable_messages_and_refuses_bad_parameters(no_leaks
 
 
 def test_sim_refuses_bad_goals_and_serves_goals_for_vanished_objects(no_leaks, ctx):
-    from roger_sim.sim_node import SimNode
-
     from roger_interfaces.msg import ActionGoal
+    from roger_sim.sim_node import SimNode
     node = SimNode(context=ctx, parameter_overrides=[
         Parameter("world", value=str(WORLDS / "table1.yaml")),
         Parameter("image_size", value=64)])

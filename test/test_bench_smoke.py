@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 import pytest
+
 from roger_bringup.bench import main_bench
 
 CONTRACT = ("graph_vs_core", "cycle_vs_floor", "scaling_64_vs_4", "match_1000_vs_10",

@@ -11,12 +11,12 @@ from __future__ import annotations
 import math
 
 import pytest
+from conftest import WORLDS
+
 from roger_attention.config import AttentionConfig
+from roger_bringup.core_loop import CoreLoop
 from roger_sim.world import load_world, object_from_dict
 from roger_sim.worldgen import random_world
-
-from conftest import WORLDS
-from roger_bringup.core_loop import CoreLoop
 
 
 def visit_all(loop: CoreLoop, names: set[str], budget: int) -> tuple[set[str], int]:

@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from conftest import WORLDS, child_pids
 
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import pytest
-from roger_common.types import Action, ObjectSpec
 
 from roger_bringup.compare import RunResult, check_claims, sign_test_p, table2
 from roger_bringup.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
+from roger_common.types import Action, ObjectSpec
 
 S, V, H, M = (int(a) for a in Action)
 

@@ -6,11 +6,11 @@ import json
 import subprocess
 import sys
 
-from roger_sim.world import load_world
-
 from conftest import WORLDS
+
 from roger_bringup.core_loop import run_core
 from roger_memory.memory import AssociativeMemory
+from roger_sim.world import load_world
 
 
 def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
@@ -55,6 +55,7 @@ def test_second_run_with_the_first_runs_memory_stores_nothing_new(tmp_path):
 
 def test_until_complete_on_an_unseen_world_visits_every_object(no_leaks, tmp_path, ros_domain):
     import yaml
+
     from roger_sim.world import world_to_dict
     from roger_sim.worldgen import random_world
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import WORLDS
+
 from roger_attention.fsm import State
 from roger_common.types import Action
 from roger_memory.persistence import load_snapshot

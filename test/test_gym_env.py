@@ -8,6 +8,7 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+
 from roger_attention.config import QLearningConfig
 from roger_attention.fsm import STATES, State
 from roger_attention.qlearning import QTable

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+
 from roger_common.errors import MessageError
 from roger_common.types import (
     FEATURE_DIM,

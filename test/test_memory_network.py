@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+
 from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_DIM, WEIGHT_INDEX
 from roger_memory.config import MemoryConfig

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
 from roger_common.errors import MemoryFileError
 from roger_common.types import FEATURE_DIM, WEIGHT_INDEX, MatchOutcome
+from roger_memory import persistence
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
-
-from roger_memory import persistence
 
 ALL_KNOWN = np.ones(FEATURE_DIM, bool)
 W_UNKNOWN = ALL_KNOWN.copy()

@@ -6,6 +6,7 @@ import pytest
 import rclpy
 from conftest import REPO
 from rclpy.context import Context
+
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.paramdoc import (
     BUILTIN,

@@ -16,6 +16,7 @@ from perception_synth import (
     nearest_object,
     table1_objects,
 )
+
 from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX, HapticReading
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from roger_common.errors import ConfigError
 from roger_perception.config import PerceptionConfig
 from roger_perception.log_filter import (

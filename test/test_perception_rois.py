@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 from perception_synth import CENTRE_GAZE, SPREAD, Shape, make_frame, nearest_object, table1_objects
+
 from roger_common.errors import MessageError
 from roger_common.types import HapticReading
 from roger_perception.config import PerceptionConfig

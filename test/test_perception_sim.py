@@ -11,6 +11,7 @@ import itertools
 import numpy as np
 import pytest
 from conftest import WORLDS
+
 from roger_common.types import WEIGHT_INDEX, Action, Goal, StereoFrame
 from roger_perception.perception import Perception
 from roger_sim.simulator import Simulator

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from perception_synth import CENTRE_GAZE, camera_model, eye_poses, make_frame, table1_objects
+
 from roger_common.geometry import look_rotation, project_point
 from roger_common.types import CameraModel, EyePose
 from roger_perception.config import PerceptionConfig

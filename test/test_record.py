@@ -23,7 +23,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
+
 from roger_attention.attention_node import AttentionNode
+from roger_bringup import msgdefs
 from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import COUNTER_FIELDS, RunMonitor
 from roger_bringup.record import (
@@ -36,12 +38,10 @@ from roger_bringup.record import (
 )
 from roger_bringup.recorder_node import McapRecorder
 from roger_bringup.topics import TOPICS
+from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 from roger_memory.memory_node import MemoryNode
 from roger_perception.perception_node import PerceptionNode
 from roger_sim.sim_node import SimNode
-
-from roger_bringup import msgdefs
-from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 
 CYCLES = 6
 

@@ -9,13 +9,13 @@ import time
 
 import pytest
 import rclpy
+from conftest import WORLDS
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from conftest import WORLDS
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.topics import TOPICS
 from roger_interfaces.msg import Metrics, PolicyState, WorldEdit, WorldObject

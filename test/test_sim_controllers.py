@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from roger_common.errors import ConfigError
 from roger_common.geometry import project_point
 from roger_common.types import Action, ControllerState, Goal, ObjectSpec, WorldSpec

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from roger_common.types import Action, ControllerState, Goal
 from roger_sim.config import SimConfig
 from roger_sim.haptics import GRAVITY, weight_from_efforts

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+
 from roger_common.errors import WorldFileError
 from roger_common.geometry import project_point
 from roger_common.types import Action, Goal, ObjectSpec, WorldSpec

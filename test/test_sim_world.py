@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+
 from roger_common.errors import WorldFileError
 from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
 

@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from test_faults import NODE_MODULES, node_pid, rows_of
+
 from roger_common.errors import WorldFileError
 from roger_sim.world import parse_world
-from test_faults import NODE_MODULES, node_pid, rows_of
 
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
 SHAPES = ("box", "cylinder", "sphere", "prism")

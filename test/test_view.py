@@ -13,6 +13,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import Image
+
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.view import (
     FOCUS_COLOR,
@@ -26,12 +28,10 @@ from roger_bringup.view import (
 from roger_bringup.view_node import ViewNode
 from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_DIM, Roi
+from roger_interfaces.msg import Metrics
 from roger_memory.memory_node import MemoryNode
 from roger_perception.perception_node import PerceptionNode
 from roger_sim.sim_node import SimNode
-from sensor_msgs.msg import Image
-
-from roger_interfaces.msg import Metrics
 
 H, W = 48, 64
 

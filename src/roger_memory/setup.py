@@ -12,7 +12,9 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    description="back-propagation associative memory with winner-take-all and a persistent long-term memory",
+    description=(
+        "back-propagation associative memory with winner-take-all and a "
+        "persistent long-term memory"),
     license="Apache-2.0",
     entry_points={
         "console_scripts": ["roger-memory = roger_memory.memory_node:main"],

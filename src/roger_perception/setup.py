@@ -12,7 +12,9 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    description="LoG visual buffer, regions of interest, features (eqs. 1-5) and pre-attentive activation",
+    description=(
+        "LoG visual buffer, regions of interest, features (eqs. 1-5) and "
+        "pre-attentive activation"),
     license="Apache-2.0",
     entry_points={
         "console_scripts": ["roger-perception = roger_perception.perception_node:main"],

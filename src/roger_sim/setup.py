@@ -12,7 +12,9 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    description="pybullet simulator of Roger-the-Crab: robot, servo controllers, Phong retinas, haptics, world files",
+    description=(
+        "pybullet simulator of Roger-the-Crab: robot, servo controllers, Phong "
+        "retinas, haptics, world files"),
     license="Apache-2.0",
     entry_points={
         "console_scripts": ["roger-sim = roger_sim.sim_node:main"],

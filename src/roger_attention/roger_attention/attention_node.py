@@ -32,24 +32,6 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
-from roger_common.atomic import atomic_write_bytes
-from roger_common.conversions import (
-    spin_node,
-    IMAGES,
-    LATCHED,
-    RELIABLE,
-    declare_config,
-    guard_parameters,
-    point_tuple,
-    quaternion_to_rotation,
-    time_to_seconds,
-)
-from roger_common.errors import MessageError, RogerError
-from roger_common.geometry import in_view
-from roger_common.types import Action, CameraModel, EyePose, Goal, MemoryRequest, RunCounters
-from roger_memory.conversions import msg_to_result, request_to_msg
-from roger_perception.conversions import msg_to_rois
-from roger_sim.conversions import goal_to_msg
 from sensor_msgs.msg import CameraInfo
 
 from roger_attention import conversions as conv
@@ -61,6 +43,21 @@ from roger_attention.config import (
 )
 from roger_attention.controller import AttentionController, CyclePlan
 from roger_attention.policies import make_policy
+from roger_common.atomic import atomic_write_bytes
+from roger_common.conversions import (
+    IMAGES,
+    LATCHED,
+    RELIABLE,
+    declare_config,
+    guard_parameters,
+    point_tuple,
+    quaternion_to_rotation,
+    spin_node,
+    time_to_seconds,
+)
+from roger_common.errors import MessageError, RogerError
+from roger_common.geometry import in_view
+from roger_common.types import Action, CameraModel, EyePose, Goal, MemoryRequest, RunCounters
 from roger_interfaces.msg import (
     ActionGoal,
     MemoryResult,
@@ -71,6 +68,9 @@ from roger_interfaces.msg import (
     StereoGeometry,
 )
 from roger_interfaces.msg import MemoryRequest as MemoryRequestMsg
+from roger_memory.conversions import msg_to_result, request_to_msg
+from roger_perception.conversions import msg_to_rois
+from roger_sim.conversions import goal_to_msg
 
 #: Goal ids of the looks of the initial scan (not control cycles) start here, far above the
 #: controller's own ids (1, 2, ...). Each look has an id of its own: with one shared id, a
@@ -221,7 +221,8 @@ class AttentionNode(Node):
         retry = float(self.get_parameter("retry_after_s").value)
         if self._last_sent is not None and time.monotonic() - self._last_sent[1] > retry:
             msg = self._last_sent[0]
-            self.get_logger().warn(f"no answer after {retry:.0f} s: re-sending {type(msg).__name__}")
+            self.get_logger().warn(
+                f"no answer after {retry:.0f} s: re-sending {type(msg).__name__}")
             self._publish(msg)
 
     # -- the cycle -----------------------------------------------------------------------

@@ -22,16 +22,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from roger_common.types import (
-    Action,
-    Goal,
-    MatchOutcome,
-    MatchResult,
-    MemoryOp,
-    MemoryRequest,
-    Roi,
-    RunCounters,
-)
 
 from roger_attention.config import AttentionConfig
 from roger_attention.fsm import (
@@ -45,6 +35,16 @@ from roger_attention.fsm import (
 )
 from roger_attention.policies import Policy
 from roger_attention.spatial_map import MapChanges, MapEntry, Position, SpatialMap, VisibleFn
+from roger_common.types import (
+    Action,
+    Goal,
+    MatchOutcome,
+    MatchResult,
+    MemoryOp,
+    MemoryRequest,
+    Roi,
+    RunCounters,
+)
 
 #: Outcome strings of a CycleRecord.
 OUTCOMES: tuple[str, ...] = (

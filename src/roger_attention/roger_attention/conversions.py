@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 
-from roger_common.conversions import point, seconds_to_time
-from roger_common.types import RunCounters
 from std_msgs.msg import Header
 
 from roger_attention.controller import CycleRecord
 from roger_attention.spatial_map import SpatialMap
+from roger_common.conversions import point, seconds_to_time
+from roger_common.types import RunCounters
 from roger_interfaces.msg import MapEntry, Metrics, PolicyState
 from roger_interfaces.msg import SpatialMap as SpatialMapMsg
 

@@ -12,10 +12,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from roger_attention.config import RewardConfig
 from roger_common.errors import RogerError
 from roger_common.types import Action, MatchOutcome
-
-from roger_attention.config import RewardConfig
 
 
 class IllegalActionError(RogerError, ValueError):

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from roger_common.types import Action, MatchOutcome
 
 from roger_attention.config import FsmEnvConfig
 from roger_attention.fsm import (
@@ -30,6 +29,7 @@ from roger_attention.fsm import (
     transition,
 )
 from roger_attention.qlearning import QTable
+from roger_common.types import Action, MatchOutcome
 
 
 class FsmEnv:

@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from roger_common.errors import ConfigError
-from roger_common.types import Action
 
 from roger_attention.config import POLICY_NAMES, AttentionConfig
 from roger_attention.fsm import State, check_allowed
 from roger_attention.qlearning import QTable
+from roger_common.errors import ConfigError
+from roger_common.types import Action
 
 
 @runtime_checkable

@@ -14,12 +14,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from roger_common.atomic import atomic_write_bytes
-from roger_common.errors import MemoryFileError
-from roger_common.types import Action
 
 from roger_attention.config import QLearningConfig
 from roger_attention.fsm import ACTIONS, STATES, State, possible_actions
+from roger_common.atomic import atomic_write_bytes
+from roger_common.errors import MemoryFileError
+from roger_common.types import Action
 
 #: Tag written into every Q-table file and checked on load.
 FILE_FORMAT = "roger-attention-qtable/1"

@@ -15,9 +15,9 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from roger_common.types import Roi
 
 from roger_attention.config import SpatialMapConfig
+from roger_common.types import Roi
 
 Position = tuple[float, float, float]
 #: Says whether a robot-frame position is currently inside the retina.

@@ -36,6 +36,9 @@ from typing import Any, Self
 
 import numpy as np
 import yaml
+
+from roger_bringup.core_loop import CoreLoop
+from roger_bringup.evaluation import ACTION_NAMES
 from roger_common.types import FEATURE_DIM, WorldSpec
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
@@ -43,9 +46,6 @@ from roger_perception.perception import STAGES
 from roger_sim.config import SimConfig
 from roger_sim.world import load_world, world_to_dict
 from roger_sim.worldgen import random_world
-
-from roger_bringup.core_loop import CoreLoop
-from roger_bringup.evaluation import ACTION_NAMES
 
 #: The world of ``make demo`` (24 objects), relative to the repository root.
 DEFAULT_WORLD = Path("worlds/inspection.yaml")

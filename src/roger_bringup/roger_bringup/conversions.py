@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from roger_common.conversions import point_tuple
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
+from roger_common.conversions import point_tuple
 from roger_interfaces.msg import SpatialMap
 
 

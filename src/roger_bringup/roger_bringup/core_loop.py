@@ -13,9 +13,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
 from roger_attention.policies import make_policy
+from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_common.geometry import in_view
 from roger_common.types import Action, Goal, MatchResult, StereoFrame, WorldSpec
 from roger_memory.config import MemoryConfig
@@ -24,8 +26,6 @@ from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
 from roger_sim.config import SimConfig
 from roger_sim.simulator import Simulator
-
-from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
 
 #: The initial scan, as the attention node does it (its ``home_targets`` parameter): five
 #: looks from far left to far right (bearings about +-60, +-28 and 0 degrees) that settle

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
 from roger_common.atomic import atomic_write_bytes
 from roger_common.types import Action, ObjectSpec
 

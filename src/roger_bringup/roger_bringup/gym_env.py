@@ -37,19 +37,19 @@ from typing import Any, ClassVar
 import gymnasium
 import numpy as np
 from gymnasium import spaces
+
 from roger_attention.config import AttentionConfig
 from roger_attention.fsm import ACTIONS, STATES, State, is_terminal
 from roger_attention.qlearning import QTable
+from roger_bringup.core_loop import CoreLoop
+from roger_bringup.evaluation import ACTION_NAMES
+from roger_bringup.view import compose_view
 from roger_common.errors import ConfigError, RogerError
 from roger_common.types import FEATURE_DIM, Action, WorldSpec
 from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
 from roger_sim.config import SimConfig
 from roger_sim.world import load_world
-
-from roger_bringup.core_loop import CoreLoop
-from roger_bringup.evaluation import ACTION_NAMES
-from roger_bringup.view import compose_view
 
 ENV_ID = "Roger/Attention-v0"
 #: The world of ``roger run``'s default.

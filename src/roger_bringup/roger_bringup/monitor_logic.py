@@ -14,9 +14,9 @@ from collections import OrderedDict
 from typing import Any
 
 import numpy as np
-from roger_common.types import Action, ObjectSpec
 
 from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
+from roger_common.types import Action, ObjectSpec
 
 #: Label images kept, by stamp, for the policy states that refer to them.
 LABELS_KEPT = 32

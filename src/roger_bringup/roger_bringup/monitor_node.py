@@ -11,10 +11,10 @@ from __future__ import annotations
 from typing import Any
 
 from rclpy.node import Node
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE
 
 from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import RunMonitor
+from roger_common.conversions import IMAGES, LATCHED, RELIABLE
 from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 
 #: The node names a complete graph has.

@@ -45,8 +45,8 @@ NODE_PARAMETERS: tuple[tuple[str, str, Any, str], ...] = (
      "Q-learning: update the table (training) or only run it"),
     ("roger_attention", "max_cycles", 0,
      "Stop after this many control cycles; 0 runs until shut down"),
-    ("roger_attention", "home_targets", [0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0, 0.75, -0.4, 0.0,
-                                        0.45, -0.7, 0.0],
+    ("roger_attention", "home_targets",
+     [0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0, 0.75, -0.4, 0.0, 0.45, -0.7, 0.0],
      ("Points (x, y, z triples, robot frame, m) fixated in turn by the initial scan that "
       "settles the map before the first cycle")),
     ("roger_attention", "wait_for_observers", 0,

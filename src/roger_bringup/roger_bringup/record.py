@@ -26,10 +26,10 @@ from typing import Any
 
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
-from roger_common.errors import RogerError
 
 from roger_bringup import msgdefs
 from roger_bringup.evaluation import RunRecorder
+from roger_common.errors import RogerError
 
 #: Metadata record with the run's policy, world and seed (read back by replay).
 RUN_METADATA = "roger_run"

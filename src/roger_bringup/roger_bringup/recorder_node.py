@@ -23,10 +23,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from roger_common.errors import RogerError
 
 from roger_bringup.record import RUN_METADATA, BagWriter
 from roger_bringup.topics import TOPICS, Topic
+from roger_common.errors import RogerError
 
 #: History depth of the recorder's subscriptions (a slow disk must not drop messages).
 RECORD_DEPTH = 100

@@ -15,11 +15,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
-from roger_attention.qlearning import QTable
-from roger_common.errors import RogerError
-from roger_memory.persistence import load_snapshot
-from roger_sim.world import load_world
 
+from roger_attention.qlearning import QTable
 from roger_bringup.evaluation import CycleRow, RunRecorder
 from roger_bringup.monitor_node import MonitorNode
 from roger_bringup.orchestrator import (
@@ -32,6 +29,9 @@ from roger_bringup.orchestrator import (
     ros_environment,
     shm_files,
 )
+from roger_common.errors import RogerError
+from roger_memory.persistence import load_snapshot
+from roger_sim.world import load_world
 
 #: Wall seconds the graph may take to come up.
 STARTUP_TIMEOUT_S = 60.0

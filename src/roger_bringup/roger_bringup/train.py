@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from roger_attention.fsm import STATES, possible_actions
 from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes

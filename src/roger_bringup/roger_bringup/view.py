@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from PIL import Image
+
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
 from roger_common.types import Roi

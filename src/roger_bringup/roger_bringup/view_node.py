@@ -20,17 +20,17 @@ from typing import Any
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
-from roger_common.conversions import spin_node, IMAGES, LATCHED, RELIABLE
-from roger_common.errors import MessageError, RogerError
-from roger_common.types import Action, Roi
-from roger_perception.conversions import image_to_array, msg_to_rois
 from sensor_msgs.msg import Image
 
 from roger_bringup.conversions import map_interests, view_to_msg
 from roger_bringup.evaluation import ACTION_NAMES
 from roger_bringup.monitor_logic import COUNTER_FIELDS
 from roger_bringup.view import ViewWriter, compose_view, interests_by_roi
+from roger_common.conversions import IMAGES, LATCHED, RELIABLE, spin_node
+from roger_common.errors import MessageError, RogerError
+from roger_common.types import Action, Roi
 from roger_interfaces.msg import Metrics, PolicyState, RoiArray, SpatialMap
+from roger_perception.conversions import image_to_array, msg_to_rois
 
 #: Stereo pairs kept by stamp until a policy state refers to them.
 FRAMES_KEPT = 16

@@ -188,6 +188,7 @@ def spin_node(factory: Any, prog: str, args: list[str] | None = None,
 
     import rclpy
     from rclpy.executors import ExternalShutdownException
+
     from roger_common.errors import RogerError
 
     if setup is not None:

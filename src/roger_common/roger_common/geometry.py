@@ -67,7 +67,8 @@ def triangulate(
     return (pa + pb) / 2.0, float(np.linalg.norm(pa - pb))
 
 
-def look_rotation(position: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+def look_rotation(position: np.ndarray, target: np.ndarray,
+                  up: np.ndarray | None = None) -> np.ndarray:
     """Rotation (columns: image right, image down, forward) of a camera at ``position``
     looking at ``target`` with the world ``up`` (default +z) pointing up in the image."""
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float)

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+from std_msgs.msg import Header
+
 from roger_common.conversions import seconds_to_time
 from roger_common.errors import MessageError
 from roger_common.types import FEATURE_DIM, MatchOutcome, MatchResult, MemoryOp, MemoryRequest
-from std_msgs.msg import Header
-
 from roger_interfaces.msg import MemoryRequest as MemoryRequestMsg
 from roger_interfaces.msg import MemoryResult
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
 from roger_common.errors import ConfigError, MemoryFileError, MessageError
 from roger_common.types import (
     FEATURE_DIM,
@@ -34,7 +35,6 @@ from roger_common.types import (
     MemoryOp,
     MemoryRequest,
 )
-
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot

@@ -20,18 +20,18 @@ import numpy as np
 import torch
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+
 from roger_common.conversions import (
-    spin_node,
     LATCHED,
     RELIABLE,
     declare_config,
     guard_parameters,
+    spin_node,
     time_to_seconds,
 )
 from roger_common.errors import MessageError
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp
 from roger_common.types import MemoryRequest as CoreRequest
-
 from roger_interfaces.msg import MemoryRequest, MemoryResult
 from roger_memory import conversions as conv
 from roger_memory.config import MemoryConfig

@@ -25,9 +25,9 @@ from collections.abc import Iterator
 
 import numpy as np
 import torch
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES
 from torch import nn
 
+from roger_common.types import FEATURE_DIM, FEATURE_NAMES
 from roger_memory.config import MemoryConfig
 
 #: Inputs of the network: masked features then the known mask.

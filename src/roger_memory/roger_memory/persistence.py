@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import numpy as np
+
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import MemoryFileError
 from roger_common.types import FEATURE_DIM, FEATURE_NAMES

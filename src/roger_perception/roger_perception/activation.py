@@ -16,9 +16,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+
 from roger_common.geometry import in_view
 from roger_common.types import CameraModel, EyePose
-
 from roger_perception.config import PerceptionConfig
 
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from roger_common.conversions import point, point_tuple, quaternion_to_rotation, seconds_to_time
-from roger_common.errors import MessageError
-from roger_common.types import FEATURE_DIM, CameraModel, EyePose, HapticReading, Roi
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
+from roger_common.conversions import point, point_tuple, quaternion_to_rotation, seconds_to_time
+from roger_common.errors import MessageError
+from roger_common.types import FEATURE_DIM, CameraModel, EyePose, HapticReading, Roi
 from roger_interfaces.msg import HapticReading as HapticReadingMsg
 from roger_interfaces.msg import Roi as RoiMsg
 from roger_interfaces.msg import RoiArray, SpatialMap, StereoGeometry

@@ -14,8 +14,8 @@ import math
 
 import cv2
 import numpy as np
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX
 
+from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX
 from roger_perception.config import PerceptionConfig
 from roger_perception.log_filter import kernel_edge_peak, log_kernel
 

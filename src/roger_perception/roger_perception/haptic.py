@@ -15,6 +15,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
 from roger_common.types import HapticReading
 
 

@@ -20,10 +20,10 @@ import time
 from collections.abc import Sequence
 
 import numpy as np
+
 from roger_common.errors import MessageError
 from roger_common.geometry import project_point
 from roger_common.types import CameraModel, EyePose, Roi, StereoFrame
-
 from roger_perception.activation import is_mapped, motion_term, pre_attentive_activation
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (

@@ -8,19 +8,19 @@ from __future__ import annotations
 from typing import Any
 
 from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
 from roger_common.conversions import (
-    spin_node,
     IMAGES,
     LATCHED,
     RELIABLE,
     declare_config,
     guard_parameters,
+    spin_node,
     time_to_seconds,
 )
 from roger_common.errors import MessageError
 from roger_common.types import HapticReading, StereoFrame
-from sensor_msgs.msg import CameraInfo, Image
-
 from roger_interfaces.msg import HapticReading as HapticReadingMsg
 from roger_interfaces.msg import RoiArray, SpatialMap, StereoGeometry
 from roger_perception import conversions as conv
@@ -32,7 +32,7 @@ MAX_PENDING = 8
 
 
 class PerceptionNode(Node):
-    """Joins left/right image, camera info and eye geometry by stamp and runs Perception on them."""
+    """Joins left/right image, camera info and eye geometry by stamp; runs Perception."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_perception", **kwargs)

@@ -21,8 +21,8 @@ import math
 
 import cv2
 import numpy as np
-from roger_common.types import StereoFrame
 
+from roger_common.types import StereoFrame
 from roger_perception.config import PerceptionConfig
 
 #: Smoothing (Gaussian sigma, pixels) of both retinas before the costs: halves pixel noise.

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from roger_common.types import StereoFrame
 
+from roger_common.types import StereoFrame
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import adjacency, group_fragments, near_other_label
 from roger_perception.plane_sweep import PlaneSweep, best_depths, region_curves

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from roger_common.geometry import camera_ray, project_point, triangulate
 from roger_common.types import CameraModel, EyePose
-
 from roger_perception.config import PerceptionConfig
 from roger_perception.segmentation import Blob
 

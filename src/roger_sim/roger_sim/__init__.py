@@ -1,1 +1,1 @@
-"""Pybullet simulator of Roger-the-Crab: robot, servo controllers, Phong retinas, haptics, world files."""
+"""Pybullet simulator of Roger-the-Crab: robot, servos, Phong retinas, haptics, world files."""

@@ -22,6 +22,7 @@ Status rules (as Roger-the-Crab's controllers reported them):
 from __future__ import annotations
 
 import numpy as np
+
 from roger_common.types import ControllerState
 
 

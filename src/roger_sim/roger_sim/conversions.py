@@ -5,6 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from std_msgs.msg import Header
+
 from roger_common.conversions import point, point_tuple, pose_msg, seconds_to_time
 from roger_common.types import (
     Action,
@@ -16,9 +19,6 @@ from roger_common.types import (
     ObjectSpec,
     StereoFrame,
 )
-from sensor_msgs.msg import CameraInfo, Image, JointState
-from std_msgs.msg import Header
-
 from roger_interfaces.msg import (
     ActionGoal,
     ControllerStatus,

@@ -26,8 +26,8 @@ import math
 
 import numpy as np
 import pybullet as pb
-from roger_common.types import ControllerState, HapticReading
 
+from roger_common.types import ControllerState, HapticReading
 from roger_sim.config import SimConfig
 from roger_sim.controllers import JointServo
 from roger_sim.robot import ARM_REST, HOVER, JOINT_LIMITS, RobotModel, arm_ik

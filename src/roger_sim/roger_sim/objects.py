@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pybullet as pb
-from roger_common.types import ObjectSpec
 
+from roger_common.types import ObjectSpec
 from roger_sim.world import shape_height
 
 #: Texture image size in pixels and the number of bands/squares across it.

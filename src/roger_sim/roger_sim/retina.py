@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 import pybullet as pb
-from roger_common.types import CameraModel, EyePose
 
+from roger_common.types import CameraModel, EyePose
 from roger_sim.config import SimConfig
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
+
 from roger_common.types import EyePose
 
 #: Distance between the two eyes, metres.

@@ -19,13 +19,20 @@ from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
-from roger_common.atomic import atomic_write_bytes
-from roger_common.conversions import spin_node, IMAGES, LATCHED, RELIABLE, declare_config, guard_parameters
-from roger_common.errors import RogerError
-from roger_common.types import Action, StereoFrame
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
+from roger_common.atomic import atomic_write_bytes
+from roger_common.conversions import (
+    IMAGES,
+    LATCHED,
+    RELIABLE,
+    declare_config,
+    guard_parameters,
+    spin_node,
+)
+from roger_common.errors import RogerError
+from roger_common.types import Action, StereoFrame
 from roger_interfaces.msg import (
     ActionGoal,
     ControllerStatus,

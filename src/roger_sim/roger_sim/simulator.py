@@ -15,6 +15,7 @@ from typing import Self
 
 import numpy as np
 import pybullet as pb
+
 from roger_common.errors import WorldFileError
 from roger_common.types import (
     Action,
@@ -28,7 +29,6 @@ from roger_common.types import (
     StereoFrame,
     WorldSpec,
 )
-
 from roger_sim.config import SimConfig
 from roger_sim.controllers import JointServo
 from roger_sim.haptics import HapticRoutine

@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
 from roger_common.errors import WorldFileError
 from roger_common.types import ObjectSpec, WorldSpec
-
 from roger_sim.robot import CONTROLLERS, REACH, shoulder_xy
 
 #: Shapes a world may use.

@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from roger_common.errors import WorldFileError
 from roger_common.types import ObjectSpec, WorldSpec
-
 from roger_sim.world import (
     SHAPES,
     footprint_radius,
