@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import json
-import time
 
 import pytest
 import rclpy
@@ -19,10 +18,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
+from ros_helpers import TopicListener, spin_until
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup import msgdefs
@@ -46,42 +44,24 @@ from roger_sim.sim_node import SimNode
 CYCLES = 6
 
 
-class Listener(Node):
+class Listener(TopicListener):
     """Counts messages on every documented topic and scores the run like the live monitor."""
 
     def __init__(self, monitor: RunMonitor, **kwargs) -> None:
-        super().__init__("test_record_listener", **kwargs)
-        self.counts = {t.name: 0 for t in TOPICS}
+        super().__init__("test_record_listener", depth=100, **kwargs)
         self.monitor = monitor
         self.metrics: list[Metrics] = []
-        for t in TOPICS:
-            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL
-                             if t.qos == "latched" else DurabilityPolicy.VOLATILE)
-            self.create_subscription(t.msg_class(), t.name, self._counter(t.name), qos)
 
-    def _counter(self, name):
-        def cb(msg):
-            self.counts[name] += 1
-            if isinstance(msg, GroundTruth):
-                self.monitor.on_truth(msg)
-            elif isinstance(msg, GroundTruthLabels):
-                self.monitor.on_labels(msg)
-            elif isinstance(msg, PolicyState):
-                self.monitor.on_state(msg)
-            elif isinstance(msg, Metrics):
-                self.metrics.append(msg)
-                self.monitor.on_metrics(msg)
-        return cb
-
-
-def spin_until(executor, flag, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-        if flag():
-            return True
-    return False
+    def on_message(self, topic, msg) -> None:
+        if isinstance(msg, GroundTruth):
+            self.monitor.on_truth(msg)
+        elif isinstance(msg, GroundTruthLabels):
+            self.monitor.on_labels(msg)
+        elif isinstance(msg, PolicyState):
+            self.monitor.on_state(msg)
+        elif isinstance(msg, Metrics):
+            self.metrics.append(msg)
+            self.monitor.on_metrics(msg)
 
 
 def read_rows(path):

@@ -5,16 +5,13 @@ Bounded spin_once loops that wait on a flag, never bare sleeps.
 
 from __future__ import annotations
 
-import time
-
 import pytest
 import rclpy
 from conftest import WORLDS
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from ros_helpers import TopicListener, spin_until
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.topics import TOPICS
@@ -25,37 +22,19 @@ from roger_perception.perception_node import PerceptionNode
 from roger_sim.sim_node import SimNode
 
 
-class Listener(Node):
+class Listener(TopicListener):
     """Counts messages on every documented topic and keeps the policy states."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("test_listener", **kwargs)
-        self.counts = {t.name: 0 for t in TOPICS}
         self.states: list[PolicyState] = []
         self.metrics: list[Metrics] = []
-        for t in TOPICS:
-            qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL
-                             if t.qos == "latched" else DurabilityPolicy.VOLATILE)
-            self.create_subscription(t.msg_class(), t.name, self._counter(t.name), qos)
 
-    def _counter(self, name):
-        def cb(msg):
-            self.counts[name] += 1
-            if isinstance(msg, PolicyState):
-                self.states.append(msg)
-            elif isinstance(msg, Metrics):
-                self.metrics.append(msg)
-        return cb
-
-
-def spin_until(executor, flag, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-        if flag():
-            return True
-    return False
+    def on_message(self, topic, msg) -> None:
+        if isinstance(msg, PolicyState):
+            self.states.append(msg)
+        elif isinstance(msg, Metrics):
+            self.metrics.append(msg)
 
 
 @pytest.fixture

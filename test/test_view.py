@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import rclpy
@@ -13,6 +11,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from ros_helpers import spin_until
 from sensor_msgs.msg import Image
 
 from roger_attention.attention_node import AttentionNode
@@ -134,15 +133,6 @@ class ViewListener(Node):
 
     def on_metrics(self, msg):
         self.done = self.done or msg.done
-
-
-def spin_until(executor, flag, timeout):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-        if flag():
-            return True
-    return False
 
 
 def test_view_node_publishes_one_view_per_cycle_and_writes_a_gif(no_leaks, ros_domain,

@@ -1,0 +1,45 @@
+"""Helpers shared by the ROS tests: bounded spinning and a listener on every documented topic."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from roger_bringup.topics import TOPICS
+
+
+def spin_until(executor: Any, flag: Callable[[], bool], timeout: float) -> bool:
+    """spin_once until ``flag()`` is true or ``timeout`` seconds pass; returns the flag."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        if flag():
+            return True
+    return False
+
+
+class TopicListener(Node):
+    """Subscribes to every documented topic (latched ones transient-local), counts the
+    messages per topic and hands each to ``on_message``."""
+
+    def __init__(self, name: str, depth: int = 10, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.counts = {t.name: 0 for t in TOPICS}
+        for t in TOPICS:
+            qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL
+                             if t.qos == "latched" else DurabilityPolicy.VOLATILE)
+            self.create_subscription(t.msg_class(), t.name, self._counter(t.name), qos)
+
+    def _counter(self, name: str) -> Callable[[Any], None]:
+        def cb(msg: Any) -> None:
+            self.counts[name] += 1
+            self.on_message(name, msg)
+        return cb
+
+    def on_message(self, topic: str, msg: Any) -> None:
+        """Override to look at the messages."""
