@@ -139,13 +139,8 @@ def run_core_timed(world: WorldSpec, cycles: int, seed: int = 0, image_size: int
     floor: list[float] = []
     actions: list[str] = []
     base: dict[str, float] = {}
-    idle = 0
     try:
-        while loop.ctl.counters.cycles < cycles and idle < 50:
-            record = loop.step()
-            if record is None:
-                idle += 1
-                continue
+        for record in loop.cycles(cycles):
             ends.append(time.perf_counter())
             fs = loop.sim.floor_seconds
             floor.append(fs["physics"] + fs["render"])

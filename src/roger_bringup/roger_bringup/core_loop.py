@@ -8,6 +8,7 @@ science without the middleware.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,17 @@ class CoreLoop:
             result = self.memory.handle(plan.memory_request)
         return self.ctl.end_cycle(result, self.sim.sim_time)
 
+    def cycles(self, n: int, max_idle: int = 50) -> Iterator[CycleRecord]:
+        """Run until ``n`` control cycles are counted, yielding each record; idle looks (an
+        empty map) are not yielded, and ``max_idle`` of them end the run early."""
+        idle = 0
+        while self.ctl.counters.cycles < n and idle < max_idle:
+            record = self.step()
+            if record is None:
+                idle += 1
+                continue
+            yield record
+
     def true_object(self, record: CycleRecord) -> str | None:
         """Ground truth: the object under the attention window of a physical cycle."""
         frame = self.last_frame
@@ -127,13 +139,8 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
     if out is not None:
         recorder = RunRecorder(out, list(world.objects),
                                {"policy": policy, "world": world.source, "seed": seed})
-    idle = 0
     try:
-        while loop.ctl.counters.cycles < cycles and idle < 50:
-            record = loop.step()
-            if record is None:
-                idle += 1
-                continue
+        for record in loop.cycles(cycles):
             seen = loop.true_object(record)
             if recorder is not None:
                 true_obj = recorder.scorer.true_object_for(int(record.action),
