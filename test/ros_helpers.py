@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from rclpy.node import Node
@@ -43,3 +44,44 @@ class TopicListener(Node):
 
     def on_message(self, topic: str, msg: Any) -> None:
         """Override to look at the messages."""
+
+
+class RosGraph:
+    """Nodes sharing one Context and one SingleThreadedExecutor (see ``ros_graph``)."""
+
+    def __init__(self, context: Any, executor: Any) -> None:
+        self.context = context
+        self.executor = executor
+        self.nodes: list[Node] = []
+
+    def add(self, cls: Any, *args: Any, params: dict[str, Any] | None = None,
+            **kwargs: Any) -> Any:
+        """Construct ``cls(*args, **kwargs)`` in this context with ``params`` as parameter
+        overrides, and add it to the executor."""
+        from rclpy.parameter import Parameter
+
+        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+        node = cls(*args, context=self.context, parameter_overrides=overrides, **kwargs)
+        self.executor.add_node(node)
+        self.nodes.append(node)
+        return node
+
+
+@contextmanager
+def ros_graph(domain_id: int) -> Iterator[RosGraph]:
+    """A per-test Context and executor; every node added is destroyed on the way out."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    graph = RosGraph(context, SingleThreadedExecutor(context=context))
+    try:
+        yield graph
+    finally:
+        for node in graph.nodes:
+            graph.executor.remove_node(node)
+            node.destroy_node()
+        graph.executor.shutdown()
+        rclpy.try_shutdown(context=context)

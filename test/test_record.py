@@ -12,15 +12,11 @@ import csv
 import json
 
 import pytest
-import rclpy
 from conftest import WORLDS
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
-from ros_helpers import TopicListener, spin_until
+from ros_helpers import TopicListener, ros_graph, spin_until
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup import msgdefs
@@ -71,47 +67,24 @@ def read_rows(path):
 
 def record_run(tmp, domain_id):
     """One recorded run of CYCLES cycles: (mcap path, listener counts, live run folder)."""
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def add(node):
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    def params(**kw):
-        return [Parameter(k, value=v) for k, v in kw.items()]
-
     live = RunRecorder(tmp / "live", [], {"policy": "straightforward", "seed": 3})
     mcap_path = tmp / "run.mcap"
-    try:
-        listener = add(Listener(RunMonitor(live), context=context))
-        recorder = add(McapRecorder(mcap_path, meta={"policy": "straightforward", "seed": 3,
-                                                     "world": "table1.yaml"},
-                                    context=context))
+    with ros_graph(domain_id) as g:
+        listener = g.add(Listener, RunMonitor(live))
+        recorder = g.add(McapRecorder, mcap_path, meta={"policy": "straightforward", "seed": 3,
+                                                        "world": "table1.yaml"})
         assert not mcap_path.exists() and recorder.writer.part.exists()
-        add(SimNode(context=context, parameter_overrides=params(
-            world=str(WORLDS / "table1.yaml"), seed=3)))
-        add(PerceptionNode(context=context))
-        add(MemoryNode(context=context, parameter_overrides=params(
-            memory_file=str(tmp / "ltm.pt"))))
-        add(AttentionNode(context=context, parameter_overrides=params(
-            policy="straightforward", max_cycles=CYCLES)))
-        assert spin_until(executor, lambda: any(m.done for m in listener.metrics), 120), \
+        g.add(SimNode, params=dict(world=str(WORLDS / "table1.yaml"), seed=3))
+        g.add(PerceptionNode)
+        g.add(MemoryNode, params=dict(memory_file=str(tmp / "ltm.pt")))
+        g.add(AttentionNode, params=dict(policy="straightforward", max_cycles=CYCLES))
+        assert spin_until(g.executor, lambda: any(m.done for m in listener.metrics), 120), \
             f"no completed run; counts {listener.counts}"
-        assert spin_until(executor, lambda: recorder.counts == listener.counts, 10), \
+        assert spin_until(g.executor, lambda: recorder.counts == listener.counts, 10), \
             f"recorder {recorder.counts} vs listener {listener.counts}"
         recorder.close()
         live.close(0.0)
         counts = dict(listener.counts)
-    finally:
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
     return mcap_path, counts, tmp / "live"
 
 

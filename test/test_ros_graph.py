@@ -6,12 +6,8 @@ Bounded spin_once loops that wait on a flag, never bare sleeps.
 from __future__ import annotations
 
 import pytest
-import rclpy
 from conftest import WORLDS
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from ros_helpers import TopicListener, spin_until
+from ros_helpers import TopicListener, ros_graph, spin_until
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.topics import TOPICS
@@ -39,26 +35,8 @@ class Listener(TopicListener):
 
 @pytest.fixture
 def graph(ros_domain, tmp_path):
-    context = Context()
-    rclpy.init(context=context, domain_id=ros_domain)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def add(cls, **params):
-        node = cls(context=context, parameter_overrides=[Parameter(k, value=v)
-                                                         for k, v in params.items()])
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    try:
-        yield add, executor, tmp_path
-    finally:
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
+    with ros_graph(ros_domain) as g:
+        yield (lambda cls, **params: g.add(cls, params=params)), g.executor, tmp_path
 
 
 @pytest.mark.parametrize("policy", ["straightforward", "qlearning"])

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import rclpy
 from conftest import WORLDS
 from PIL import Image as PILImage
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
-from ros_helpers import spin_until
+from ros_helpers import ros_graph, spin_until
 from sensor_msgs.msg import Image
 
 from roger_attention.attention_node import AttentionNode
@@ -138,42 +134,21 @@ class ViewListener(Node):
 def test_view_node_publishes_one_view_per_cycle_and_writes_a_gif(no_leaks, ros_domain,
                                                                    tmp_path):
     cycles, size, scale = 4, 64, 2
-    context = Context()
-    rclpy.init(context=context, domain_id=ros_domain)
-    executor = SingleThreadedExecutor(context=context)
-    nodes = []
-
-    def add(node):
-        executor.add_node(node)
-        nodes.append(node)
-        return node
-
-    def params(**kw):
-        return [Parameter(k, value=v) for k, v in kw.items()]
-
-    try:
-        listener = add(ViewListener(context=context))
-        view = add(ViewNode(tmp_path / "view", context=context,
-                            parameter_overrides=params(scale=scale)))
-        add(SimNode(context=context, parameter_overrides=params(
-            world=str(WORLDS / "table1.yaml"), image_size=size)))
-        add(PerceptionNode(context=context))
-        add(MemoryNode(context=context))
-        add(AttentionNode(context=context, parameter_overrides=params(max_cycles=cycles)))
-        assert spin_until(executor, lambda: listener.done, 120)
-        assert spin_until(executor, lambda: len(listener.views) >= cycles, 10), \
+    with ros_graph(ros_domain) as g:
+        listener = g.add(ViewListener)
+        view = g.add(ViewNode, tmp_path / "view", params=dict(scale=scale))
+        g.add(SimNode, params=dict(world=str(WORLDS / "table1.yaml"), image_size=size))
+        g.add(PerceptionNode)
+        g.add(MemoryNode)
+        g.add(AttentionNode, params=dict(max_cycles=cycles))
+        assert spin_until(g.executor, lambda: listener.done, 120)
+        assert spin_until(g.executor, lambda: len(listener.views) >= cycles, 10), \
             f"{len(listener.views)} views"
         first = listener.views[0]
         assert first.encoding == "rgb8"
         assert first.width == 2 * size * scale + MARGIN and first.height > size * scale
         assert len(first.data) == first.step * first.height == first.width * 3 * first.height
         gif = view.close()
-    finally:
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
     assert view.published == cycles == len(listener.views)
     with PILImage.open(gif) as im:
         assert im.n_frames == cycles
