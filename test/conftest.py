@@ -14,8 +14,11 @@ from pathlib import Path
 
 import pytest
 
+from roger_common.dds import apply_dds_defaults
+
 _LOG_DIR = tempfile.mkdtemp(prefix="roger-test-ros-logs-")
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+apply_dds_defaults(os.environ)  # the same Fast DDS profile as every Roger process
 os.environ["ROS_LOG_DIR"] = _LOG_DIR
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 # One domain per test session (pytest-xdist workers or parallel CI runs get different ones).

@@ -19,6 +19,8 @@ import uuid
 import pytest
 from conftest import WORLDS
 
+from roger_common.dds import PROFILE_ENV
+
 SUBNET = "10.213.0"
 
 
@@ -56,7 +58,10 @@ def two_hosts():
 
 def test_sim_on_one_host_rest_on_the_other(no_leaks, tmp_path, ros_domain, two_hosts):
     host_a, host_b = two_hosts
-    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain),
+    # UDP only, no shared-memory profile: the two hosts share /dev/shm, and traffic must
+    # cross the veth pair to prove anything.
+    env = dict({k: v for k, v in os.environ.items() if k != PROFILE_ENV},
+               ROS_DOMAIN_ID=str(ros_domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", FASTDDS_BUILTIN_TRANSPORTS="UDPv4",
                ROS_LOG_DIR=str(tmp_path / "ros_logs"))
     world = WORLDS / "table1.yaml"

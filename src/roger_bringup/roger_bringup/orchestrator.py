@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from roger_common.dds import apply_dds_defaults
+
 #: Environment variable naming the folder where nodes keep what they need to resume.
 STATE_DIR_ENV = "ROGER_STATE_DIR"
 
@@ -58,7 +60,7 @@ def ros_environment(out_dir: Path, domain_id: int, base: dict[str, str] | None =
     env = dict(os.environ if base is None else base)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env[STATE_DIR_ENV] = str(out_dir / "state")
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    apply_dds_defaults(env)  # LOCALHOST discovery, the shared-memory profile
     env["ROS_LOG_DIR"] = str(out_dir / "ros_logs")
     env.setdefault("PYTHONUNBUFFERED", "1")
     # Each node is single-threaded by design; one torch/BLAS thread each keeps the four

@@ -12,6 +12,7 @@ Run alone: ``python -m roger_bringup.recorder_node --ros-args -p path:=run.mcap`
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -26,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from roger_bringup.record import RUN_METADATA, BagWriter
 from roger_bringup.topics import TOPICS, Topic
+from roger_common.dds import apply_dds_defaults
 from roger_common.errors import RogerError
 
 #: History depth of the recorder's subscriptions (a slow disk must not drop messages).
@@ -105,6 +107,7 @@ class McapRecorder(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Record the documented topics until Ctrl-C: ``python -m roger_bringup.recorder_node``."""
+    apply_dds_defaults(os.environ)
     rclpy.init(args=args)
     node = None
     try:

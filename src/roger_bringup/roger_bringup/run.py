@@ -29,6 +29,7 @@ from roger_bringup.orchestrator import (
     ros_environment,
     shm_files,
 )
+from roger_common.dds import PROFILE_ENV
 from roger_common.errors import RogerError
 from roger_memory.persistence import load_snapshot
 from roger_sim.world import load_world
@@ -182,8 +183,10 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     # Resume state belongs to one run: a new run into the same folder starts afresh.
     shutil.rmtree(env[STATE_DIR_ENV], ignore_errors=True)
     Path(env[STATE_DIR_ENV]).mkdir(parents=True)
-    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR"):
-        os.environ.setdefault(key, env[key])
+    # This process joins the graph too (the monitor): same discovery range and profile.
+    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", PROFILE_ENV, "ROS_LOG_DIR"):
+        if key in env:
+            os.environ.setdefault(key, env[key])
     meta = {"policy": opt.policy, "world": str(opt.world), "seed": opt.seed,
             "domain_id": domain_id}
     recorder = ResumingRecorder(out, list(world.objects), meta, memory_file=memory)

@@ -184,15 +184,18 @@ def spin_node(factory: Any, prog: str, args: list[str] | None = None,
         args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
         setup: Optional callable run once before ``rclpy.init``.
     """
+    import os
     import sys
 
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    from roger_common.dds import apply_dds_defaults
     from roger_common.errors import RogerError
 
     if setup is not None:
         setup()
+    apply_dds_defaults(os.environ)
     rclpy.init(args=args)
     node = None
     try:
