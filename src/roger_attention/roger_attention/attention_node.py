@@ -50,8 +50,7 @@ from roger_common.conversions import (
     RELIABLE,
     declare_config,
     guard_parameters,
-    point_tuple,
-    quaternion_to_rotation,
+    msg_to_eye_pose,
     spin_node,
     time_to_seconds,
 )
@@ -166,6 +165,10 @@ class AttentionNode(Node):
         self.ctl = AttentionController(self.config, self.policy, rng)
         state_dir = os.environ.get(STATE_DIR_ENV, "")
         self.state_path = Path(state_dir) / "attention.json" if state_dir else None
+        # What a resume state restores (set first: _load_state overwrites them).
+        self._memory_size = 0
+        self._sim_now = 0.0
+        self._map_revision = 0
         self._resume: dict[str, Any] | None = self._load_state()
 
         self.pub_goal = self.create_publisher(ActionGoal, "/roger/goal", RELIABLE)
@@ -187,10 +190,8 @@ class AttentionNode(Node):
         self._waiting_request: int | None = None
         self._last_sent: tuple[Any, float] | None = None
         self._frame_stamp = 0.0
-        self._memory_size = 0
         self._started = False
         self._done = False
-        self._sim_now = 0.0
         self._looks = 0
         # Wall-clock timers: the simulated clock only advances when a goal is executed, so a
         # sim-time timer would never fire while the graph waits for its first goal.
@@ -232,7 +233,15 @@ class AttentionNode(Node):
 
     def _send_goal(self, goal: Goal) -> None:
         self._waiting_goal = goal.goal_id
-        self._publish(goal_to_msg(goal, self._sim_now))
+        msg = goal_to_msg(goal, self._sim_now)
+        msg.map_revision = self._map_revision  # perceive the pair with this map
+        self._publish(msg)
+
+    def _publish_map(self, stamp: float) -> None:
+        self._map_revision += 1
+        msg = conv.spatial_map_msg(self.ctl.spatial_map, stamp)
+        msg.revision = self._map_revision
+        self.pub_map.publish(msg)
 
     def _send_request(self, req: MemoryRequest) -> None:
         self._waiting_request = req.request_id
@@ -283,7 +292,7 @@ class AttentionNode(Node):
             self.get_logger().error(f"ROI array of goal {msg.goal_id} unusable: {exc}")
             rois = []
         self.ctl.observe(rois, stamp, self._visible(msg.header.stamp))
-        self.pub_map.publish(conv.spatial_map_msg(self.ctl.spatial_map, stamp))
+        self._publish_map(stamp)
         if is_look(int(msg.goal_id)):
             if self._scan:
                 self._send_look()
@@ -323,7 +332,7 @@ class AttentionNode(Node):
         if self.learn and self.qtable_path is not None and self.policy.learns:
             self.policy.save(self.qtable_path)
         self.pub_state.publish(state_msg)
-        self.pub_map.publish(conv.spatial_map_msg(self.ctl.spatial_map, self._sim_now))
+        self._publish_map(self._sim_now)
         self._publish_metrics(done=False)
         self.next_cycle()
 
@@ -350,6 +359,7 @@ class AttentionNode(Node):
             "next_goal_id": self.ctl._next_goal_id,
             "next_request_id": self.ctl._next_request_id,
             "sim_now": self._sim_now, "memory_size": self._memory_size,
+            "map_revision": self._map_revision,
             "q": table.q.tolist() if table is not None else None,
             "mapped": [{"position": list(e.position), "address": int(e.address)}
                        for e in self.ctl.spatial_map if e.mapped],
@@ -386,6 +396,9 @@ class AttentionNode(Node):
         self.ctl._next_request_id = int(state["next_request_id"]) + 1
         self._sim_now = float(state["sim_now"])
         self._memory_size = int(state["memory_size"])
+        # Revisions go on rising across a restart (perception waits for >=); the margin
+        # covers maps published after the last save.
+        self._map_revision = int(state.get("map_revision", 0)) + 1000
         state["next_goal_id"] = self.ctl._next_goal_id
         state["next_request_id"] = self.ctl._next_request_id
         atomic_write_bytes(path, json.dumps(state).encode())
@@ -407,19 +420,18 @@ class AttentionNode(Node):
         if state["last_state"]:
             self.pub_state.publish(deserialize_message(
                 base64.b64decode(state["last_state"]), PolicyState))
-        self.pub_map.publish(conv.spatial_map_msg(smap, self._sim_now))
+        self._publish_map(self._sim_now)
         self._publish_metrics(done=False)
 
     # -- what is in view -----------------------------------------------------------------
     def on_geometry(self, msg: StereoGeometry) -> None:
         """Keep the left eye's pose by stamp, to tell which map places are in view."""
         key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        position = np.array(point_tuple(msg.left_eye.position))
-        rotation = quaternion_to_rotation(msg.left_eye.orientation)
-        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(rotation))):
+        pose = msg_to_eye_pose(msg.left_eye)
+        if not (np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.rotation))):
             self.get_logger().error("stereo geometry with NaN eye pose ignored")
             return
-        self._geometry[key] = EyePose(position=position, rotation=rotation)
+        self._geometry[key] = pose
         while len(self._geometry) > 16:
             self._geometry.pop(next(iter(self._geometry)))
 

@@ -28,7 +28,7 @@ def record_to_msg(record: CycleRecord, policy: str, stamp: float,
         action=int(record.action), reward=float(record.reward),
         td_error=float("nan") if record.td_error is None else float(record.td_error),
         entry_id=int(record.entry_id),
-        position=point(record.position if record.position is not None else (0.0, 0.0, 0.0)),
+        position=point(record.position if record.position is not None else (math.nan,) * 3),
         x0=int(x0), y0=int(y0), x1=int(x1), y1=int(y1), outcome=record.outcome,
         address=int(record.address), frame_stamp=seconds_to_time(frame_stamp))
 

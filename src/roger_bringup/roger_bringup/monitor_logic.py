@@ -88,7 +88,7 @@ class RunMonitor:
             reward=float(msg.reward), td_error=None if math.isnan(td) else td,
             roi=int(msg.entry_id), true_object=true_object, outcome=msg.outcome,
             state_after=msg.state_after, address=int(msg.address),
-            position=(p.x, p.y, p.z) if msg.entry_id >= 0 else None,
+            position=(p.x, p.y, p.z) if msg.entry_id >= 0 and math.isfinite(p.x) else None,
             sim_time=_seconds(msg.header.stamp))
 
     def on_state(self, msg: Any) -> CycleRow:

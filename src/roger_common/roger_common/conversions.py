@@ -16,6 +16,9 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from roger_common.geometry import eye_pose, quaternion_from_rotation, rotation_from_quaternion
+from roger_common.types import EyePose
+
 #: Commands and state: reliable, depth 10 (house style).
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       history=HistoryPolicy.KEEP_LAST)
@@ -54,40 +57,32 @@ def point_tuple(p: Point) -> tuple[float, float, float]:
 
 def rotation_to_quaternion(r: np.ndarray) -> Quaternion:
     """A 3x3 rotation matrix as a unit quaternion (Shepperd's method)."""
-    m = np.asarray(r, float)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, \
-            (m[1, 0] - m[0, 1]) / s
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, \
-            (m[0, 2] + m[2, 0]) / s
-    elif m[1, 1] > m[2, 2]:
-        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, \
-            (m[1, 2] + m[2, 1]) / s
-    else:
-        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, \
-            (m[1, 2] + m[2, 1]) / s, 0.25 * s
+    x, y, z, w = quaternion_from_rotation(r)
     return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def quaternion_to_rotation(q: Quaternion) -> np.ndarray:
     """A unit quaternion as a 3x3 rotation matrix."""
-    x, y, z, w = q.x, q.y, q.z, q.w
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return rotation_from_quaternion((q.x, q.y, q.z, q.w))
 
 
 def pose_msg(position: np.ndarray, rotation: np.ndarray) -> Pose:
     """A geometry_msgs/Pose from a position and a rotation matrix."""
     return Pose(position=point(position), orientation=rotation_to_quaternion(rotation))
+
+
+def eye_pose_msg(pose: EyePose) -> Pose:
+    """An eye pose as a Pose; its own quaternion when it has one (exact round trip)."""
+    if pose.quaternion is None:
+        return pose_msg(pose.position, pose.rotation)
+    x, y, z, w = pose.quaternion
+    return Pose(position=point(pose.position), orientation=Quaternion(x=x, y=y, z=z, w=w))
+
+
+def msg_to_eye_pose(p: Pose) -> EyePose:
+    """A Pose as an EyePose (rotation rebuilt from the quaternion, which it keeps)."""
+    o = p.orientation
+    return eye_pose(point_tuple(p.position), (o.x, o.y, o.z, o.w))
 
 
 def declare_config(node: Node, config_cls: type[C], prefix: str = "",

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 
 from roger_common.types import CameraModel, EyePose
@@ -80,3 +83,44 @@ def look_rotation(position: np.ndarray, target: np.ndarray,
     right /= np.linalg.norm(right)
     down = np.cross(fwd, right)
     return np.column_stack([right, down, fwd])
+
+
+def quaternion_from_rotation(r: np.ndarray) -> tuple[float, float, float, float]:
+    """A 3x3 rotation matrix as a unit quaternion (x, y, z, w) (Shepperd's method)."""
+    m = np.asarray(r, float)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, \
+            (m[1, 0] - m[0, 1]) / s
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, \
+            (m[0, 2] + m[2, 0]) / s
+    elif m[1, 1] > m[2, 2]:
+        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, \
+            (m[1, 2] + m[2, 1]) / s
+    else:
+        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, \
+            (m[1, 2] + m[2, 1]) / s, 0.25 * s
+    return float(x), float(y), float(z), float(w)
+
+
+def rotation_from_quaternion(q: Sequence[float]) -> np.ndarray:
+    """A unit quaternion (x, y, z, w) as a 3x3 rotation matrix."""
+    x, y, z, w = (float(c) for c in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def eye_pose(position: Sequence[float] | np.ndarray, quaternion: Sequence[float]) -> EyePose:
+    """An EyePose whose rotation is computed from ``quaternion`` (x, y, z, w), which it
+    keeps: the same quaternion gives the same matrix wherever it is rebuilt."""
+    q = tuple(float(c) for c in quaternion)
+    return EyePose(position=np.asarray(position, float), rotation=rotation_from_quaternion(q),
+                   quaternion=(q[0], q[1], q[2], q[3]))

@@ -137,10 +137,14 @@ class EyePose:
         rotation: 3x3 matrix whose columns are the camera axes in the robot frame,
             OpenCV convention: column 0 = image right (+u), column 1 = image down (+v),
             column 2 = optical axis (forward).
+        quaternion: The unit quaternion (x, y, z, w) ``rotation`` was computed from, when
+            it was (``geometry.eye_pose``): messages carry it, so that a receiver rebuilds
+            ``rotation`` bit for bit and the graph computes what the core loop computes.
     """
 
     position: np.ndarray
     rotation: np.ndarray
+    quaternion: tuple[float, float, float, float] | None = None
 
 
 @dataclass

@@ -8,7 +8,7 @@ import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from roger_common.conversions import point, point_tuple, quaternion_to_rotation, seconds_to_time
+from roger_common.conversions import msg_to_eye_pose, point, point_tuple, seconds_to_time
 from roger_common.errors import MessageError
 from roger_common.types import FEATURE_DIM, CameraModel, EyePose, HapticReading, Roi
 from roger_interfaces.msg import HapticReading as HapticReadingMsg
@@ -48,8 +48,7 @@ def camera_from_info(msg: CameraInfo) -> CameraModel:
 def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
     """Left and right eye poses of a StereoGeometry message. Raises MessageError on NaN."""
     def one(p):  # type: ignore[no-untyped-def]
-        pose = EyePose(position=np.array(point_tuple(p.position)),
-                       rotation=quaternion_to_rotation(p.orientation))
+        pose = msg_to_eye_pose(p)
         if not (np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.rotation))):
             raise MessageError(f"stereo geometry of goal {msg.goal_id}: eye pose not finite")
         return pose

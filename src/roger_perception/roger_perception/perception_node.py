@@ -5,8 +5,10 @@ Run alone: ``roger-perception`` (or ``python -m roger_perception.perception_node
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -29,10 +31,21 @@ from roger_perception.perception import Perception
 
 #: Partial stereo pairs kept while their other parts arrive.
 MAX_PENDING = 8
+#: A complete pair still waiting for its haptic reading or spatial map after this many
+#: seconds (wall) is processed without them, with a warning.
+WAIT_LIMIT_S = 2.0
 
 
 class PerceptionNode(Node):
-    """Joins left/right image, camera info and eye geometry by stamp; runs Perception."""
+    """Joins left/right image, camera info and eye geometry by stamp; runs Perception.
+
+    A pair is processed once it is complete, in the order of completion, and once what it
+    depends on has arrived on the other topics: the haptic reading of its goal (when the
+    geometry says there is one) and a spatial map of at least the goal's ``map_revision``.
+    DDS does not order messages across topics, so without this wait the weight feature
+    and the "mapped" term of the activation depended on delivery order: two runs of the
+    same seed parted ways (docs/performance.md).
+    """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_perception", **kwargs)
@@ -42,6 +55,9 @@ class PerceptionNode(Node):
         self._pending: dict[tuple[int, int], dict[str, Any]] = {}
         self._haptic: dict[int, HapticReading] = {}
         self._mapped: list[tuple[float, float, float]] = []
+        self._map_revision = 0
+        #: Complete pairs waiting for their haptic reading or map: (parts, since).
+        self._ready: list[tuple[dict[str, Any], float]] = []
         self.pub_rois = self.create_publisher(RoiArray, "/roger/rois", RELIABLE)
         self.create_subscription(Image, "/roger/left/image_raw",
                                  lambda m: self._part(m.header.stamp, "left", m), IMAGES)
@@ -53,6 +69,8 @@ class PerceptionNode(Node):
                                  lambda m: self._part(m.header.stamp, "info", m), IMAGES)
         self.create_subscription(HapticReadingMsg, "/roger/haptic", self.on_haptic, RELIABLE)
         self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
+        self.create_timer(0.5, self._flush_stale,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def on_haptic(self, msg: HapticReadingMsg) -> None:
         """Keep the haptic reading for the frame of the same goal."""
@@ -63,10 +81,13 @@ class PerceptionNode(Node):
             return
         while len(self._haptic) > MAX_PENDING:
             self._haptic.pop(next(iter(self._haptic)))
+        self._drain()
 
     def on_map(self, msg: SpatialMap) -> None:
         """Mapping status feeds the pre-attentive activation."""
         self._mapped = conv.mapped_positions(msg)
+        self._map_revision = max(self._map_revision, int(msg.revision))
+        self._drain()
 
     def _part(self, stamp: Any, kind: str, msg: Any) -> None:
         key = (stamp.sec, stamp.nanosec)
@@ -74,9 +95,34 @@ class PerceptionNode(Node):
         parts[kind] = msg
         if len(parts) == 4:
             del self._pending[key]
-            self._process(parts)
+            self._ready.append((parts, time.monotonic()))
+            self._drain()
         while len(self._pending) > MAX_PENDING:
             self._pending.pop(next(iter(self._pending)))
+
+    def _waits_for(self, geometry: StereoGeometry) -> str | None:
+        """What a complete pair still lacks, or None."""
+        if geometry.haptic and int(geometry.goal_id) not in self._haptic:
+            return "its haptic reading"
+        if self._map_revision < int(geometry.map_revision):
+            return f"spatial map {geometry.map_revision} (have {self._map_revision})"
+        return None
+
+    def _drain(self, force: bool = False) -> None:
+        """Process the waiting pairs in order, up to the first that still lacks something."""
+        while self._ready:
+            parts, since = self._ready[0]
+            lacks = self._waits_for(parts["geometry"])
+            if lacks is not None:
+                if not force or time.monotonic() - since < WAIT_LIMIT_S:
+                    return
+                self.get_logger().warn(f"stereo pair of goal {parts['geometry'].goal_id} "
+                                       f"processed without {lacks} after {WAIT_LIMIT_S} s")
+            self._ready.pop(0)
+            self._process(parts)
+
+    def _flush_stale(self) -> None:
+        self._drain(force=True)
 
     def _process(self, parts: dict[str, Any]) -> None:
         geometry: StereoGeometry = parts["geometry"]

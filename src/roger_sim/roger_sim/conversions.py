@@ -8,7 +8,7 @@ import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Header
 
-from roger_common.conversions import point, point_tuple, pose_msg, seconds_to_time
+from roger_common.conversions import eye_pose_msg, point, point_tuple, seconds_to_time
 from roger_common.types import (
     Action,
     CameraModel,
@@ -87,13 +87,13 @@ def camera_info_msg(camera: CameraModel, stamp: float, frame_id: str,
         p=[f, 0.0, cx, tx, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
 
 
-def stereo_geometry_msg(frame: StereoFrame) -> StereoGeometry:
-    """The eye poses of a stereo pair."""
+def stereo_geometry_msg(frame: StereoFrame, map_revision: int = 0) -> StereoGeometry:
+    """The eye poses of a stereo pair; ``map_revision`` comes from the goal that made it."""
     return StereoGeometry(
         header=header(frame.stamp), goal_id=frame.goal_id,
-        left_eye=pose_msg(frame.left_pose.position, frame.left_pose.rotation),
-        right_eye=pose_msg(frame.right_pose.position, frame.right_pose.rotation),
-        exposures=frame.exposures)
+        left_eye=eye_pose_msg(frame.left_pose), right_eye=eye_pose_msg(frame.right_pose),
+        exposures=frame.exposures, map_revision=int(map_revision),
+        haptic=frame.haptic is not None)
 
 
 def haptic_msg(reading: HapticReading, goal_id: int, stamp: float) -> HapticReadingMsg:

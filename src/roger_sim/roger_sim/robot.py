@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
+from roger_common.geometry import eye_pose, quaternion_from_rotation
 from roger_common.types import EyePose
 
 #: Distance between the two eyes, metres.
@@ -177,8 +178,10 @@ class RobotModel:
         pos = np.array(state[4], float)
         rot = np.array(pb.getMatrixFromQuaternion(state[5]), float).reshape(3, 3)
         # Eye link axes: x along the optical axis, y left, z up. OpenCV: right, down, fwd.
-        return EyePose(position=pos, rotation=np.column_stack([-rot[:, 1], -rot[:, 2],
-                                                               rot[:, 0]]))
+        cv_axes = np.column_stack([-rot[:, 1], -rot[:, 2], rot[:, 0]])
+        # Rebuilt from its quaternion, which travels in StereoGeometry: every receiver
+        # computes the very same matrix.
+        return eye_pose(pos, quaternion_from_rotation(cv_axes))
 
 
 def _box(client: int, half: tuple[float, float, float], offset: tuple[float, float, float],

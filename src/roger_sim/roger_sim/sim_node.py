@@ -78,6 +78,7 @@ class SimNode(Node):
             self.sim._steps = saved[1]
         self._last_goal_id = -1
         self._last_frame: StereoFrame | None = None
+        self._map_revision = 0
         self._last_haptic_msg: HapticReading | None = None
         self._wall_start = time.monotonic()
 
@@ -127,6 +128,7 @@ class SimNode(Node):
         stamp = self.sim.sim_time
         self._pace(stamp)
         self._last_goal_id, self._last_frame = goal.goal_id, frame
+        self._map_revision = int(msg.map_revision)
         self._last_haptic_msg = None
         self._publish_clock()
         self.pub_status.publish(conv.controller_status_msg(report.states, stamp))
@@ -155,7 +157,7 @@ class SimNode(Node):
         labels = conv.ground_truth_labels_msg(frame)
         if labels is not None:
             self.pub_labels.publish(labels)
-        self.pub_geometry.publish(conv.stereo_geometry_msg(frame))
+        self.pub_geometry.publish(conv.stereo_geometry_msg(frame, self._map_revision))
         self.pub_left.publish(conv.image_msg(frame.left, stamp, conv.LEFT_FRAME))
         self.pub_right.publish(conv.image_msg(frame.right, stamp, conv.RIGHT_FRAME))
 

@@ -1,0 +1,98 @@
+"""The perception node processes a stereo pair only once what it depends on has arrived.
+
+DDS orders messages per topic, not across topics: the haptic reading of a haptic goal and
+the spatial map the attention node published before the goal may reach the perception
+node after the pair itself. The node must then wait (ROS callbacks called directly here,
+in the worst delivery order, so the test does not depend on timing).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from ros_helpers import ros_graph
+
+from roger_common.geometry import eye_pose
+from roger_common.types import CameraModel, HapticReading, StereoFrame
+from roger_interfaces.msg import MapEntry, SpatialMap
+from roger_perception import perception_node
+from roger_perception.perception_node import PerceptionNode
+from roger_sim import conversions as sc
+from roger_sim.robot import BASELINE
+
+
+def frame_parts(goal_id: int, stamp: float, map_revision: int = 0,
+                haptic: HapticReading | None = None) -> dict[str, Any]:
+    size = 32
+    cam = CameraModel(width=size, height=size, focal_px=30.0)
+    pose = eye_pose(np.zeros(3), (0.0, 0.0, 0.0, 1.0))
+    img = np.full((size, size), 0.2, np.float32)
+    frame = StereoFrame(stamp=stamp, goal_id=goal_id, left=img, right=img, camera=cam,
+                        left_pose=pose, right_pose=pose, haptic=haptic)
+    return {
+        "left": sc.image_msg(img, stamp, "l"), "right": sc.image_msg(img, stamp, "r"),
+        "info": sc.camera_info_msg(cam, stamp, "l", BASELINE, right=False),
+        "geometry": sc.stereo_geometry_msg(frame, map_revision),
+    }
+
+
+def deliver(node: PerceptionNode, parts: dict[str, Any]) -> None:
+    for kind in ("geometry", "left", "right", "info"):
+        node._part(parts[kind].header.stamp, kind, parts[kind])
+
+
+def spatial_map(revision: int, *positions: tuple[float, float, float]) -> SpatialMap:
+    msg = SpatialMap(revision=revision)
+    msg.entries = [MapEntry(id=i, mapped=True) for i in range(len(positions))]
+    for e, p in zip(msg.entries, positions, strict=True):
+        e.position.x, e.position.y, e.position.z = p
+    return msg
+
+
+@pytest.fixture
+def node(ros_domain):
+    with ros_graph(ros_domain) as graph:
+        n = graph.add(PerceptionNode)
+        n.seen = []
+
+        def process(frame: StereoFrame, mapped: Any = ()) -> list:
+            n.seen.append((frame.goal_id, frame.haptic, list(mapped)))
+            return []
+
+        n.perception.process = process
+        yield n
+
+
+def test_a_pair_waits_for_its_haptic_reading(node):
+    reading = HapticReading(arm=0, contact=True, position=(0.6, 0.1, 0.05), weight=1.5)
+    deliver(node, frame_parts(5, 1.0, haptic=reading))
+    assert node.seen == []  # complete, but its haptic reading is still on the way
+    node.on_haptic(sc.haptic_msg(reading, 5, 1.0))
+    assert [(g, h is not None and h.weight) for g, h, _ in node.seen] == [(5, 1.5)]
+
+
+def test_a_pair_waits_for_the_map_its_goal_was_sent_after(node):
+    node.on_map(spatial_map(1))
+    deliver(node, frame_parts(6, 1.0, map_revision=2))
+    assert node.seen == []
+    node.on_map(spatial_map(2, (0.5, 0.0, 0.05)))
+    assert node.seen == [(6, None, [(0.5, 0.0, 0.05)])]
+
+
+def test_pairs_are_processed_in_order(node):
+    deliver(node, frame_parts(7, 1.0, map_revision=1))
+    deliver(node, frame_parts(8, 2.0))  # needs nothing, but comes after goal 7's pair
+    assert node.seen == []
+    node.on_map(spatial_map(1))
+    assert [g for g, _, _ in node.seen] == [7, 8]
+
+
+def test_a_pair_whose_map_never_comes_is_processed_after_the_limit(node, monkeypatch):
+    deliver(node, frame_parts(9, 1.0, map_revision=4))
+    node._flush_stale()
+    assert node.seen == []  # not yet: under the limit
+    monkeypatch.setattr(perception_node, "WAIT_LIMIT_S", 0.0)
+    node._flush_stale()
+    assert [g for g, _, _ in node.seen] == [9]
