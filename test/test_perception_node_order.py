@@ -96,3 +96,19 @@ def test_a_pair_whose_map_never_comes_is_processed_after_the_limit(node, monkeyp
     monkeypatch.setattr(perception_node, "WAIT_LIMIT_S", 0.0)
     node._flush_stale()
     assert [g for g, _, _ in node.seen] == [9]
+
+
+def test_a_reading_without_contact_releases_the_pair(node):
+    """The hand closed on nothing: NaN weight, still the pair's reading (no 2 s wait)."""
+    empty = HapticReading(arm=1, contact=False, position=(0.6, 0.1, 0.05),
+                          weight=float("nan"))
+    deliver(node, frame_parts(10, 1.0, haptic=empty))
+    node.on_haptic(sc.haptic_msg(empty, 10, 1.0))
+    assert [(g, h.contact) for g, h, _ in node.seen] == [(10, False)]
+
+
+def test_an_unusable_reading_releases_the_pair_without_one(node):
+    bad = HapticReading(arm=0, contact=True, position=(0.6, 0.1, 0.05), weight=-2.0)
+    deliver(node, frame_parts(11, 1.0, haptic=bad))
+    node.on_haptic(sc.haptic_msg(bad, 11, 1.0))
+    assert node.seen == [(11, None, [])]

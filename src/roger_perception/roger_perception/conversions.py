@@ -56,7 +56,14 @@ def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
 
 
 def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
-    """A haptic message as a core reading. Raises MessageError on a NaN or negative weight."""
+    """A haptic message as a core reading.
+
+    A reading without contact (the hand closed on nothing) carries NaN weight and is kept
+    as it is. Raises MessageError on a contact with a NaN or negative weight or position.
+    """
+    if not msg.contact:
+        return HapticReading(arm=int(msg.arm), contact=False,
+                             position=point_tuple(msg.position), weight=float(msg.weight))
     if not math.isfinite(msg.weight) or msg.weight < 0:
         raise MessageError(f"haptic reading of goal {msg.goal_id}: weight {msg.weight} unusable")
     if not all(math.isfinite(v) for v in point_tuple(msg.position)):

@@ -53,7 +53,7 @@ class PerceptionNode(Node):
         guard_parameters(self, PerceptionConfig, "", lambda: self.config)
         self.perception = Perception(self.config)
         self._pending: dict[tuple[int, int], dict[str, Any]] = {}
-        self._haptic: dict[int, HapticReading] = {}
+        self._haptic: dict[int, HapticReading | None] = {}
         self._mapped: list[tuple[float, float, float]] = []
         self._map_revision = 0
         #: Complete pairs waiting for their haptic reading or map: (parts, since).
@@ -75,10 +75,11 @@ class PerceptionNode(Node):
     def on_haptic(self, msg: HapticReadingMsg) -> None:
         """Keep the haptic reading for the frame of the same goal."""
         try:
-            self._haptic[int(msg.goal_id)] = conv.msg_to_haptic(msg)
+            reading: HapticReading | None = conv.msg_to_haptic(msg)
         except MessageError as exc:
             self.get_logger().error(f"haptic reading dropped: {exc}")
-            return
+            reading = None  # the pair of this goal need not wait for it any longer
+        self._haptic[int(msg.goal_id)] = reading
         while len(self._haptic) > MAX_PENDING:
             self._haptic.pop(next(iter(self._haptic)))
         self._drain()
