@@ -148,3 +148,21 @@ def test_config_round_trips_through_dict() -> None:
     assert MemoryConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match="bogus"):
         MemoryConfig.from_dict({"bogus": 1})
+
+
+def test_first_store_imports_nothing_new() -> None:
+    """torch's first optimizer step imports torch._dynamo (>1 s): building a memory pays it,
+    so the first store of a running graph does not stall on an import."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, numpy as np\n"
+        "from roger_memory.memory import AssociativeMemory\n"
+        "m = AssociativeMemory(seed=0)\n"
+        "before = set(sys.modules)\n"
+        "m.store(np.full(11, 0.5, np.float32), np.ones(11, bool))\n"
+        "print(sorted(n for n in set(sys.modules) - before if n.startswith('torch')))\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120, check=True).stdout.strip()
+    assert out == "[]", out[:300]

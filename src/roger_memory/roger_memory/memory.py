@@ -36,7 +36,7 @@ from roger_common.types import (
     MemoryRequest,
 )
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
-from roger_memory.network import AssociativeNetwork, train_replay
+from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
 
 
@@ -59,6 +59,7 @@ class AssociativeMemory:
         self._addresses = np.zeros(0, np.int64)
         self._network = AssociativeNetwork(config.hidden_sizes, self._torch_generator(-1))
         self._network.eval()
+        warm_up_optimizer()
         #: Replay steps the last store took (diagnostics and benchmarks).
         self.last_train_steps = 0
 

@@ -49,6 +49,26 @@ def encode(features: np.ndarray, known: np.ndarray) -> np.ndarray:
     return np.concatenate([np.where(k, x, 0.0), k], axis=1).astype(np.float32)
 
 
+_warmed_up = False
+
+
+def warm_up_optimizer() -> None:
+    """Take one Adam step on a throwaway parameter, once per process.
+
+    torch's first optimizer step imports ``torch._dynamo``: 1.3 s on the 2-core machine.
+    Paid here, when a memory is built, instead of at the first store, where it stalled a
+    running graph for that long (and cost the 204-cycle benchmark ~6 ms per cycle).
+    """
+    global _warmed_up
+    if _warmed_up:
+        return
+    p = torch.nn.Parameter(torch.zeros(1))
+    optimizer = torch.optim.Adam([p])
+    p.sum().backward()
+    optimizer.step()
+    _warmed_up = True
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """Run torch on one intra-op thread inside the block, then restore the thread count.

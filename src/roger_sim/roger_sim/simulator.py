@@ -105,6 +105,8 @@ class Simulator:
             self._bank_starts = np.concatenate([[0], np.cumsum(self._bank_sizes)[:-1]])
         self._bank_kp = np.repeat([s.kp for s in self._servo_list], self._bank_sizes)
         self._bank_kd = np.repeat([s.kd for s in self._servo_list], self._bank_sizes)
+        self._tol_key: tuple[tuple[float, float], ...] = ()
+        self._tol_arrays = (np.zeros(0), np.zeros(0))
         self._physics_seconds = 0.0
         self._reset_pose()
         self._factory = ObjectFactory(c)
@@ -217,8 +219,7 @@ class Simulator:
             # the same comparisons as JointServo.update_status, one numpy call each.
             refs = np.concatenate([s.reference if s.reference is not None else q[d]
                                    for s, d in self._servo_dofs])
-            tol = np.repeat([s.tolerance for s in servos], self._bank_sizes)
-            vtol = np.repeat([s.velocity_tolerance for s in servos], self._bank_sizes)
+            tol, vtol = self._bank_tolerances(servos)
             ok = (abs(refs - q) < tol) & (abs(qd) < vtol)
             within = np.logical_and.reduceat(ok, self._bank_starts).tolist()
             for servo, w in zip(servos, within, strict=True):
@@ -240,7 +241,9 @@ class Simulator:
         # Computed torque: tau = M(q) qdd* + C(q, qd) + g(q); g(q) is the gravity compensation.
         tau = np.array(pb.calculateInverseDynamics(self.robot.body, q_list, qd.tolist(),
                                                    qdd.tolist(), physicsClientId=self.client))
-        np.clip(tau, self._effort_low, self._effort_limit, out=tau)
+        # np.clip's Python wrapper cost more than the clipping (ufuncs called directly).
+        np.maximum(tau, self._effort_low, out=tau)
+        np.minimum(tau, self._effort_limit, out=tau)
         pb.setJointMotorControlArray(self.robot.body, self._indices, pb.TORQUE_CONTROL,
                                      forces=tau.tolist(), physicsClientId=self.client)
         t0 = time.perf_counter()
@@ -248,6 +251,15 @@ class Simulator:
         self._physics_seconds += time.perf_counter() - t0
         self._applied = tau
         self._steps += 1
+
+    def _bank_tolerances(self, servos: list[JointServo]) -> tuple[np.ndarray, np.ndarray]:
+        """Per-joint position and speed tolerances (a goal may change a servo's), cached."""
+        key = tuple((s.tolerance, s.velocity_tolerance) for s in servos)
+        if key != self._tol_key:
+            self._tol_key = key
+            self._tol_arrays = (np.repeat([k[0] for k in key], self._bank_sizes),
+                                np.repeat([k[1] for k in key], self._bank_sizes))
+        return self._tol_arrays
 
     def _busy(self, routine: HapticRoutine | None) -> bool:
         if routine is not None and not routine.done:
