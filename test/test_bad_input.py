@@ -132,8 +132,12 @@ def test_perception_drops_unusable_stereo_pairs_and_keeps_running(no_leaks, ctx)
         bad_pairs.append((image(), image(), info, nan_pose))               # eye pose
         for left, right, cam, geo in bad_pairs:
             node._process({"left": left, "right": right, "info": cam, "geometry": geo})
-        node.on_haptic(HapticReading(goal_id=3, weight=float("nan")))
-        assert node.pub_rois.msgs == [] and node._haptic == {}
+        # A contact with a NaN weight is unusable: kept as None, so goal 3's pair stops
+        # waiting for it; a reading without contact carries NaN weight and is kept as is.
+        node.on_haptic(HapticReading(goal_id=3, contact=True, weight=float("nan")))
+        node.on_haptic(HapticReading(goal_id=4, contact=False, weight=float("nan")))
+        assert node.pub_rois.msgs == [] and node._haptic[3] is None
+        assert node._haptic[4] is not None and not node._haptic[4].contact
         # Still working: a usable pair is perceived.
         node._process({"left": image(), "right": image(), "info": info, "geometry": geometry})
         assert len(node.pub_rois.msgs) == 1
