@@ -122,6 +122,8 @@ def test_config_kernel_sizes_follow_the_sigmas() -> None:
     ("kernel_radius_sigmas", 1.0),
     ("max_area_ratio", 0.5),
     ("weight_motion", -1.0),
+    ("cv_threads", 0),
+    ("cv_threads", True),
 ])
 def test_config_rejects_bad_values_naming_the_field(field: str, value: object) -> None:
     with pytest.raises(ConfigError, match=field):
@@ -132,3 +134,17 @@ def test_config_rejects_all_zero_activation_weights() -> None:
     zeros = dict.fromkeys(PerceptionConfig.weight_names(), 0.0)
     with pytest.raises(ConfigError):
         PerceptionConfig(**zeros)
+
+
+def test_perception_sets_opencv_threads_from_its_config() -> None:
+    import cv2
+
+    from roger_perception.perception import Perception
+    before = cv2.getNumThreads()
+    try:
+        Perception(PerceptionConfig(cv_threads=2))
+        assert cv2.getNumThreads() == 2
+        Perception()  # the default: one thread, no busy-waiting workers
+        assert cv2.getNumThreads() == 1
+    finally:
+        cv2.setNumThreads(before)

@@ -75,6 +75,11 @@ class PerceptionConfig:
         motion_deadband_m: Displacement regarded as triangulation jitter, not motion.
         weight_size, weight_intensity, weight_motion, weight_tactile, weight_unmapped:
             Weights of the pre-attentive activation terms (non-negative, not all zero).
+        cv_threads: OpenCV worker threads (process-wide, set when a Perception is built;
+            >= 1). One by default: between calls OpenCV's workers busy-wait
+            (``sched_yield``), which on a 2-core machine takes a core from the other
+            nodes of the graph, and the filters here are too small to gain from threads
+            (docs/performance.md). Values never depend on it.
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -115,6 +120,7 @@ class PerceptionConfig:
     weight_motion: float = 1.0
     weight_tactile: float = 1.0
     weight_unmapped: float = 2.0
+    cv_threads: int = 1
 
     def __post_init__(self) -> None:
         sig = tuple(self.log_sigmas)
@@ -137,6 +143,9 @@ class PerceptionConfig:
                 and 0 < self.sweep_near_m < self.sweep_far_m):
             raise _fail("sweep_far_m", self.sweep_far_m,
                         f"need 0 < sweep_near_m ({self.sweep_near_m!r}) < sweep_far_m")
+        if (not isinstance(self.cv_threads, int) or isinstance(self.cv_threads, bool)
+                or self.cv_threads < 1):
+            raise _fail("cv_threads", self.cv_threads, "need an integer >= 1")
         if not isinstance(self.min_roi_pixels, int) or self.min_roi_pixels < 1:
             raise _fail("min_roi_pixels", self.min_roi_pixels, "need an integer >= 1")
         positive = (

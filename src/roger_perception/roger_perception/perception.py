@@ -19,6 +19,7 @@ import math
 import time
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from roger_common.errors import MessageError
@@ -62,6 +63,7 @@ class Perception:
 
     def __init__(self, config: PerceptionConfig | None = None, seed: int = 0) -> None:
         self.config = PerceptionConfig() if config is None else config
+        cv2.setNumThreads(self.config.cv_threads)
         self.seed = int(seed)
         self._gmax = g_max(self.config)
         self._vicinity = [vicinity_radius(s, self.config) for s in self.config.log_sigmas]
