@@ -83,6 +83,7 @@ def record_run(tmp, domain_id):
         assert spin_until(g.executor, lambda: recorder.counts == listener.counts, 10), \
             f"recorder {recorder.counts} vs listener {listener.counts}"
         recorder.close()
+        listener.monitor.flush(force=True)
         live.close(0.0)
         counts = dict(listener.counts)
     return mcap_path, counts, tmp / "live"

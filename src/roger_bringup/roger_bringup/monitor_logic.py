@@ -10,7 +10,9 @@ Messages are read by attribute only, so this module needs no rclpy.
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -20,6 +22,9 @@ from roger_common.types import Action, ObjectSpec
 
 #: Label images kept, by stamp, for the policy states that refer to them.
 LABELS_KEPT = 32
+#: Wall seconds a policy state waits for the label image of its frame (DDS orders messages
+#: per topic only) before it is scored without it.
+LABELS_WAIT_S = 2.0
 #: Metrics message fields that are Table 2 counters.
 COUNTER_FIELDS: tuple[str, ...] = (
     "cycles", "attention_shifts", "improvements", "visual_improvements",
@@ -49,12 +54,17 @@ class RunMonitor:
         done: True once a Metrics message said the run reached its stop condition.
     """
 
-    def __init__(self, recorder: RunRecorder) -> None:
-        """Start with no labels and nothing recorded."""
+    def __init__(self, recorder: RunRecorder,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        """Start with no labels and nothing recorded (``clock``: wall seconds, for waits)."""
         self.recorder = recorder
         self.labels: OrderedDict[tuple[int, int], tuple[np.ndarray, tuple[str, ...]]] = \
             OrderedDict()
         self.done = False
+        self._clock = clock
+        self._newest_label: tuple[int, int] | None = None
+        #: Policy states not recorded yet (in arrival order) and when each arrived.
+        self._waiting: deque[tuple[Any, float]] = deque()
 
     @property
     def cycles(self) -> int:
@@ -69,9 +79,20 @@ class RunMonitor:
         """Keep the last few frames' left label images by stamp."""
         img = msg.left
         labels = np.frombuffer(bytes(img.data), np.int32).reshape(img.height, img.width)
-        self.labels[_stamp_key(msg.header.stamp)] = (labels, tuple(msg.label_names))
+        key = _stamp_key(msg.header.stamp)
+        self.labels[key] = (labels, tuple(msg.label_names))
         while len(self.labels) > LABELS_KEPT:
             self.labels.popitem(last=False)
+        self._newest_label = key if self._newest_label is None else max(self._newest_label,
+                                                                         key)
+        self.flush()
+
+    def _awaits_labels(self, msg: Any) -> bool:
+        """True while the labels of this state's frame may still come (they come in order)."""
+        key = _stamp_key(msg.frame_stamp)
+        return (msg.action != Action.MAP_UPDATE and msg.x1 > msg.x0 and key != (0, 0)
+                and key not in self.labels
+                and (self._newest_label is None or self._newest_label < key))
 
     def row_from_state(self, msg: Any) -> CycleRow:
         """The CycleRow of a PolicyState message, scored against the labels of its frame."""
@@ -91,11 +112,30 @@ class RunMonitor:
             position=(p.x, p.y, p.z) if msg.entry_id >= 0 and math.isfinite(p.x) else None,
             sim_time=_seconds(msg.header.stamp))
 
-    def on_state(self, msg: Any) -> CycleRow:
-        """One finished cycle: find the object under the attention window, record it."""
-        row = self.row_from_state(msg)
-        self.recorder.add(row)
-        return row
+    def on_state(self, msg: Any) -> None:
+        """One finished cycle: find the object under the attention window, record it.
+
+        The labels of its frame travel on another topic and may come after it: the state
+        is recorded once they are here, once newer labels show they never will be, or
+        after LABELS_WAIT_S (see :meth:`flush`); states are recorded in arrival order.
+        """
+        self._waiting.append((msg, self._clock()))
+        self.flush()
+
+    @property
+    def waiting(self) -> int:
+        """Policy states received but not recorded yet."""
+        return len(self._waiting)
+
+    def flush(self, force: bool = False) -> None:
+        """Record the states whose labels are here or overdue (all of them with ``force``)."""
+        now = self._clock()
+        while self._waiting:
+            msg, since = self._waiting[0]
+            if not force and self._awaits_labels(msg) and now - since < LABELS_WAIT_S:
+                return
+            self._waiting.popleft()
+            self.recorder.add(self.row_from_state(msg))
 
     def on_metrics(self, msg: Any) -> None:
         """Live counters; ``done`` ends the run."""

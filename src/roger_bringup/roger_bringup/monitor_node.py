@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from roger_bringup.evaluation import RunRecorder
@@ -36,6 +37,9 @@ class MonitorNode(Node):
                                  self.monitor.on_labels, IMAGES)
         self.create_subscription(GroundTruth, "/roger/ground_truth", self.monitor.on_truth,
                                  LATCHED)
+        # Records policy states whose frame's labels are overdue (wall clock: sim time
+        # stands still while the graph waits).
+        self.create_timer(0.1, self.monitor.flush, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     @property
     def cycles(self) -> int:

@@ -269,6 +269,7 @@ def replay(mcap_path: Path, out_dir: Path) -> dict[str, Any]:
             if topic == "/roger/metrics" and not policy:
                 policy = msg.policy
     finally:
+        monitor.flush(force=True)  # states whose labels were not recorded
         if policy:
             recorder.meta["policy"] = policy
         metrics = recorder.close(time.monotonic() - t0)

@@ -274,6 +274,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         # A killed node's port files stay in use while its peers live, and nobody removes
         # them afterwards: remove what the run left now that all its processes stopped.
         clean_shm(shm_before, [os.getpid()])
+        monitor.monitor.flush(force=True)  # states still waiting for their labels
         metrics = recorder.close(time.monotonic() - t0)
         metrics_status = {"status": status, "killed_on_stop": killed,
                           "restarts": {c.name: c.restarts for c in graph.children if c.restarts},
