@@ -43,7 +43,7 @@ from roger_attention.config import (
 )
 from roger_attention.controller import AttentionController, CyclePlan
 from roger_attention.policies import make_policy
-from roger_common.atomic import atomic_write_bytes
+from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.conversions import (
     IMAGES,
     LATCHED,
@@ -330,7 +330,7 @@ class AttentionNode(Node):
         # Persist before reporting: a kill between the two loses no cycle that was reported.
         self._save_state(state_msg)
         if self.learn and self.qtable_path is not None and self.policy.learns:
-            self.policy.save(self.qtable_path)
+            self.policy.save(self.qtable_path, durable=False)
         self.pub_state.publish(state_msg)
         self._publish_map(self._sim_now)
         self._publish_metrics(done=False)
@@ -366,7 +366,14 @@ class AttentionNode(Node):
             "last_state": base64.b64encode(serialize_message(last)).decode()
             if last is not None else None,
         }
-        atomic_write_bytes(self.state_path, json.dumps(state).encode())
+        # Not fsynced: this sits on every cycle's critical path (sync_file at exit).
+        atomic_write_bytes(self.state_path, json.dumps(state).encode(), durable=False)
+
+    def destroy_node(self) -> None:
+        """Flush the per-cycle files (resume state, Q-table) to the disk, then go."""
+        sync_file(self.state_path)
+        sync_file(self.qtable_path)
+        super().destroy_node()
 
     def _load_state(self) -> dict[str, Any] | None:
         """Restore counters, ids and Q-table from the resume state, if there is one."""

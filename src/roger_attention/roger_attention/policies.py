@@ -107,9 +107,9 @@ class QLearningPolicy:
             return None
         return self.table.update(state, action, reward, next_state, terminated, next_allowed)
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Save the Q-table atomically."""
-        self.table.save(path)
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Save the Q-table atomically (``durable``: see atomic_write_bytes)."""
+        self.table.save(path, durable=durable)
 
 
 def make_policy(name: str, config: AttentionConfig, rng: np.random.Generator,

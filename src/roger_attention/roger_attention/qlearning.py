@@ -119,10 +119,10 @@ class QTable:
             "q": self.q.tolist(),
         }
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the table to ``path`` atomically (JSON)."""
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Write the table to ``path`` atomically (JSON; ``durable``: see atomic_write_bytes)."""
         data = json.dumps(self.to_dict(), indent=1).encode("utf-8")
-        atomic_write_bytes(path, data)
+        atomic_write_bytes(path, data, durable=durable)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str],

@@ -249,9 +249,12 @@ class AssociativeMemory:
         memory._addresses = np.asarray(snap.addresses, np.int64).copy()
         return memory
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the long-term memory to ``path`` atomically (old or new file, never broken)."""
-        save_snapshot(self.snapshot(), path)
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Write the long-term memory to ``path`` atomically (old or new file, never broken).
+
+        ``durable``: fsync too (see :func:`roger_common.atomic.atomic_write_bytes`).
+        """
+        save_snapshot(self.snapshot(), path, durable=durable)
 
     @classmethod
     def load(

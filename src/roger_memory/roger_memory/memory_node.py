@@ -21,6 +21,7 @@ import torch
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
+from roger_common.atomic import sync_file
 from roger_common.conversions import (
     LATCHED,
     RELIABLE,
@@ -93,7 +94,8 @@ class MemoryNode(Node):
         if req.op == MemoryOp.STORE and stored is None:
             if self.path is not None:
                 try:
-                    self.memory.save(self.path)
+                    # Not fsynced: it delays the reply (sync_file at exit).
+                    self.memory.save(self.path, durable=False)
                 except OSError as exc:
                     self.get_logger().error(f"could not write {self.path}: {exc}; the object "
                                             "is kept in RAM only")
@@ -104,6 +106,11 @@ class MemoryNode(Node):
         while len(self._replies) > REPLIES_KEPT:
             self._replies.popitem(last=False)
         self.pub_result.publish(reply)
+
+    def destroy_node(self) -> None:
+        """Flush the memory file (written after each store without fsync) to the disk."""
+        sync_file(self.path)
+        super().destroy_node()
 
     def _stored_address(self, req: CoreRequest) -> int | None:
         """Address of an exemplar equal to the request's pattern (a STORE sent again)."""

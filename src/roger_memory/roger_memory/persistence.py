@@ -147,9 +147,13 @@ def decode_snapshot(data: bytes, source: str = "<bytes>") -> MemorySnapshot:
     return MemorySnapshot(config, seed, n_addresses, exemplars, known, addresses, weights)
 
 
-def save_snapshot(snapshot: MemorySnapshot, path: str | os.PathLike[str]) -> None:
-    """Write a snapshot to ``path`` atomically (write a temporary file, then rename)."""
-    atomic_write_bytes(path, encode_snapshot(snapshot))
+def save_snapshot(snapshot: MemorySnapshot, path: str | os.PathLike[str],
+                  durable: bool = True) -> None:
+    """Write a snapshot to ``path`` atomically (write a temporary file, then rename).
+
+    ``durable``: fsync too (see :func:`roger_common.atomic.atomic_write_bytes`).
+    """
+    atomic_write_bytes(path, encode_snapshot(snapshot), durable=durable)
 
 
 def load_snapshot(path: str | os.PathLike[str]) -> MemorySnapshot:

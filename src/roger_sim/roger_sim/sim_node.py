@@ -22,7 +22,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from roger_common.atomic import atomic_write_bytes
+from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.conversions import (
     IMAGES,
     LATCHED,
@@ -130,16 +130,19 @@ class SimNode(Node):
         self._last_goal_id, self._last_frame = goal.goal_id, frame
         self._map_revision = int(msg.map_revision)
         self._last_haptic_msg = None
+        # What perception waits for goes first (the haptic reading, then the frame): the
+        # rest is for observers and would only delay the control cycle.
+        if goal.action == Action.HAPTIC_IMPROVEMENT and frame.haptic is not None:
+            self._last_haptic_msg = conv.haptic_msg(frame.haptic, goal.goal_id, stamp)
+            self.pub_haptic.publish(self._last_haptic_msg)
+        self._publish_frame(frame)
         self._publish_clock()
         self.pub_status.publish(conv.controller_status_msg(report.states, stamp))
         self.pub_convergence.publish(conv.convergence_msg(report, goal.action, stamp))
         names, pos, vel, eff = self.sim.joint_state()
         self.pub_joints.publish(conv.joint_state_msg(names, pos, vel, eff, stamp))
-        if goal.action == Action.HAPTIC_IMPROVEMENT and frame.haptic is not None:
-            self._last_haptic_msg = conv.haptic_msg(frame.haptic, goal.goal_id, stamp)
-            self.pub_haptic.publish(self._last_haptic_msg)
+        if self._last_haptic_msg is not None:
             self._publish_ground_truth()
-        self._publish_frame(frame)
 
     def _pace(self, sim_time: float) -> None:
         """In real-time mode, hold the results until the wall clock has caught up."""
@@ -154,12 +157,14 @@ class SimNode(Node):
                                                         BASELINE, right=False))
         self.pub_right_info.publish(conv.camera_info_msg(frame.camera, stamp, conv.RIGHT_FRAME,
                                                          BASELINE, right=True))
-        labels = conv.ground_truth_labels_msg(frame)
-        if labels is not None:
-            self.pub_labels.publish(labels)
         self.pub_geometry.publish(conv.stereo_geometry_msg(frame, self._map_revision))
         self.pub_left.publish(conv.image_msg(frame.left, stamp, conv.LEFT_FRAME))
         self.pub_right.publish(conv.image_msg(frame.right, stamp, conv.RIGHT_FRAME))
+        # The monitor keeps the labels of recent frames by stamp; they reach it long
+        # before the PolicyState of this frame, which needs perception first.
+        labels = conv.ground_truth_labels_msg(frame)
+        if labels is not None:
+            self.pub_labels.publish(labels)
 
     def _publish_clock(self) -> None:
         msg = Clock()
@@ -196,7 +201,8 @@ class SimNode(Node):
         """Write the current world and step count atomically (only with ROGER_STATE_DIR)."""
         if self.state_path is not None:
             state = {"world": world_to_dict(self.sim.world), "steps": self.sim.physics_steps}
-            atomic_write_bytes(self.state_path, json.dumps(state).encode())
+            # Not fsynced: this sits on every cycle's critical path (sync_file at exit).
+            atomic_write_bytes(self.state_path, json.dumps(state).encode(), durable=False)
 
     def _load_state(self) -> tuple[Any, int] | None:
         """The saved world and step count, or None (no state, or an unusable one)."""
@@ -231,7 +237,8 @@ class SimNode(Node):
         return response
 
     def destroy_node(self) -> None:
-        """Disconnect the simulator with the node."""
+        """Disconnect the simulator with the node; flush the resume state to the disk."""
+        sync_file(self.state_path)
         self.sim.close()
         super().destroy_node()
 
