@@ -177,13 +177,11 @@ class AttentionNode(Node):
         self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", RELIABLE)
         self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", RELIABLE)
         self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
-        # Geometry and camera first: when a frame's geometry and its ROI array are taken in
-        # the same executor pass, callbacks run in subscription order.
+        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
+        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
         self.create_subscription(StereoGeometry, "/roger/stereo_geometry", self.on_geometry,
                                  IMAGES)
         self.create_subscription(CameraInfo, "/roger/left/camera_info", self.on_info, IMAGES)
-        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
-        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
 
         self._geometry: dict[tuple[int, int], EyePose] = {}
         self._camera: CameraModel | None = None
@@ -195,8 +193,6 @@ class AttentionNode(Node):
         self._started = False
         self._done = False
         self._looks = 0
-        #: Reports of finished cycles (policy state, map, metrics) not published yet.
-        self._reports: list[tuple[PolicyState, SpatialMap, Metrics]] = []
         # Wall-clock timers: the simulated clock only advances when a goal is executed, so a
         # sim-time timer would never fire while the graph waits for its first goal.
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -242,14 +238,10 @@ class AttentionNode(Node):
         self._publish(msg)
 
     def _publish_map(self, stamp: float) -> None:
-        self.pub_map.publish(self._map_msg(stamp))
-
-    def _map_msg(self, stamp: float) -> SpatialMap:
-        """The spatial map as a message, with the next revision number."""
         self._map_revision += 1
         msg = conv.spatial_map_msg(self.ctl.spatial_map, stamp)
         msg.revision = self._map_revision
-        return msg
+        self.pub_map.publish(msg)
 
     def _send_request(self, req: MemoryRequest) -> None:
         self._waiting_request = req.request_id
@@ -339,35 +331,21 @@ class AttentionNode(Node):
         self._save_state(state_msg)
         if self.learn and self.qtable_path is not None and self.policy.learns:
             self.policy.save(self.qtable_path, durable=False)
-        # The map is numbered now (the next goal carries its revision), but the reports go
-        # out after the next goal: they are for observers, the goal is the critical path.
-        self._reports.append((state_msg, self._map_msg(self._sim_now),
-                              self._metrics_msg(done=False)))
+        self.pub_state.publish(state_msg)
+        self._publish_map(self._sim_now)
+        self._publish_metrics(done=False)
         self.next_cycle()
-        self._publish_reports()
-
-    def _publish_reports(self) -> None:
-        """Publish the reports of finished cycles, oldest first."""
-        reports, self._reports = self._reports, []
-        for state_msg, map_msg, metrics_msg in reports:
-            self.pub_state.publish(state_msg)
-            self.pub_map.publish(map_msg)
-            self.pub_metrics.publish(metrics_msg)
 
     def _finish(self) -> None:
-        self._publish_reports()  # the last cycle's report comes before "done"
         if not self._done:
             self._done = True
             self.get_logger().info(f"done after {self.ctl.counters.cycles} cycles")
         self._publish_metrics(done=True)
 
-    def _metrics_msg(self, done: bool) -> Metrics:
-        return conv.metrics_msg(self.ctl.counters, self.config.policy,
-                                len(self.ctl.spatial_map), self._memory_size, done,
-                                self._sim_now)
-
     def _publish_metrics(self, done: bool) -> None:
-        self.pub_metrics.publish(self._metrics_msg(done))
+        self.pub_metrics.publish(conv.metrics_msg(
+            self.ctl.counters, self.config.policy, len(self.ctl.spatial_map),
+            self._memory_size, done, self._sim_now))
 
     # -- resuming after a restart ------------------------------------------------------
     def _save_state(self, last: PolicyState | None) -> None:
