@@ -177,11 +177,13 @@ class AttentionNode(Node):
         self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", RELIABLE)
         self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", RELIABLE)
         self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
-        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
-        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
+        # Geometry and camera first: when a frame's geometry and its ROI array are taken in
+        # the same executor pass, callbacks run in subscription order.
         self.create_subscription(StereoGeometry, "/roger/stereo_geometry", self.on_geometry,
                                  IMAGES)
         self.create_subscription(CameraInfo, "/roger/left/camera_info", self.on_info, IMAGES)
+        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
+        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
 
         self._geometry: dict[tuple[int, int], EyePose] = {}
         self._camera: CameraModel | None = None
