@@ -4,7 +4,10 @@ One invocation measures, under the same machine conditions:
 
 * ``graph_vs_core``: control cycles/s of the multi-process graph (``run_graph``) divided by
   cycles/s of the same core loop (``CoreLoop``: same simulator, perception, memory and
-  policy code, same world and seed) called directly in one process;
+  policy code, same world and seed) called directly in one process. Core and graph run
+  in alternation, ``ROUNDS`` times each, and their cycles are pooled: a shared VM's speed
+  drifts by tens of percent within a minute, and one core-then-graph pair can land on
+  either side of the drift (``graph_vs_core_rounds`` keeps each round's ratio);
 * ``cycle_vs_floor``: the graph's mean wall time per cycle divided by the floor, the wall
   time pybullet alone needs for the physics steps and the two retina renders of a cycle
   (``Simulator.floor_seconds``, measured in the core run of the same world and seed, which
@@ -22,10 +25,12 @@ so process start-up and the initial scan are left out of both the graph and the 
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
 import platform
+import shutil
 import statistics
 import threading
 import time
@@ -47,6 +52,8 @@ from roger_sim.config import SimConfig
 from roger_sim.world import load_world, world_to_dict
 from roger_sim.worldgen import random_world
 
+#: Alternating core and graph runs whose cycles are pooled for ``graph_vs_core``.
+ROUNDS = 3
 #: The world of ``make demo`` (24 objects), relative to the repository root.
 DEFAULT_WORLD = Path("worlds/inspection.yaml")
 #: The issue's targets (docs/performance.md); ``*_max`` are upper bounds.
@@ -84,6 +91,27 @@ class CoreRun:
         if len(self.floor) < 2:
             return math.nan
         return (self.floor[-1] - self.floor[0]) / (len(self.floor) - 1)
+
+
+def pool_core(runs: list[CoreRun]) -> CoreRun:
+    """Several core runs as one: their steady-state cycles and stage times pooled."""
+    if len(runs) == 1:
+        return runs[0]
+    n = [max(1, r.cycles - 1) for r in runs]
+    total = sum(n)
+    ends = _pool_ends([r.ends for r in runs])
+    floor = _pool_ends([r.floor for r in runs])
+    stages = {k: sum(r.stages.get(k, 0.0) * w for r, w in zip(runs, n)) / total
+              for k in runs[0].stages}
+    return CoreRun(cycles=len(ends), ends=ends, floor=floor, stages=stages,
+                   actions=runs[0].actions, physics_steps=runs[0].physics_steps,
+                   wall_s=sum(r.wall_s for r in runs))
+
+
+def _pool_ends(rounds: list[list[float]]) -> list[float]:
+    """The steady-state intervals of several runs, end to end."""
+    steps = [b - a for r in rounds for a, b in zip(r, r[1:])]
+    return list(itertools.accumulate(steps, initial=0.0))
 
 
 def _steady(ends: list[float]) -> float:
@@ -144,7 +172,8 @@ def run_core_timed(world: WorldSpec, cycles: int, seed: int = 0, image_size: int
             ends.append(time.perf_counter())
             fs = loop.sim.floor_seconds
             floor.append(fs["physics"] + fs["render"])
-            actions.append(f"{ACTION_NAMES.get(int(record.action))}@{loop.sim.sim_time:.4f}")
+            actions.append(f"{ACTION_NAMES.get(int(record.action))}@{loop.sim.sim_time:.4f}"
+                           f":{record.outcome}:{record.address}")
             if len(ends) == 1:  # stages are counted from the end of the first cycle
                 base = {**timers.seconds, **fs,
                         **{f"p_{k}": v for k, v in perception_stages.items()}}
@@ -222,18 +251,22 @@ def run_graph_timed(world_path: Path, out: Path, cycles: int, seed: int = 0,
     """Run the real multi-process graph and time-stamp each recorded cycle."""
     from roger_bringup.run import RunOptions, run_graph
 
-    out.mkdir(parents=True, exist_ok=True)
+    # A fresh folder: a memory, Q-table or resume state left there by an earlier run
+    # would be loaded, and the graph would not run what the core runs.
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
     opt = RunOptions(world=world_path, out=out, cycles=cycles, seed=seed,
                      image_size=image_size, progress=False)
-    (out / "cycles.csv").unlink(missing_ok=True)  # a previous run's rows are not ours
     t0 = time.perf_counter()
     with _CsvWatcher(out / "cycles.csv") as watcher:
         metrics = run_graph(opt, log=io.StringIO())
     with open(out / "cycles.csv") as fh:
         header = fh.readline().strip().split(",")
         a, t = header.index("action"), header.index("sim_time")
+        o, m = header.index("outcome"), header.index("address")
         rows = [line.strip().split(",") for line in fh if line.strip()]
-    actions = [f"{r[a]}@{float(r[t]):.4f}" for r in rows]
+    actions = [f"{r[a]}@{float(r[t]):.4f}:{r[o]}:{r[m]}" for r in rows]
     return {"ends": watcher.ends, "actions": actions, "wall_s": time.perf_counter() - t0,
             "metrics": metrics}
 
@@ -288,17 +321,29 @@ def main_bench(out: Path, quick: bool = False, world: Path | None = None,
     seed = 0
     t_all = time.perf_counter()
 
-    log(f"roger bench: core loop, {cycles} cycles on {world_path.name}")
-    core = run_core_timed(spec, cycles, seed)
-    log(f"roger bench: graph, {cycles} cycles on {world_path.name}")
-    graph = run_graph_timed(world_path, out / "graph_128", cycles, seed)
+    rounds = 1 if quick else ROUNDS
+    core_runs: list[CoreRun] = []
+    graph_runs: list[dict[str, Any]] = []
+    for i in range(rounds):
+        tag = f" (round {i + 1} of {rounds})" if rounds > 1 else ""
+        log(f"roger bench: core loop, {cycles} cycles on {world_path.name}{tag}")
+        core_runs.append(run_core_timed(spec, cycles, seed))
+        log(f"roger bench: graph, {cycles} cycles on {world_path.name}{tag}")
+        graph_runs.append(run_graph_timed(world_path, out / ("graph_128" if i == 0 else
+                                                             f"graph_128_{i + 1}"),
+                                          cycles, seed))
+    core = pool_core(core_runs)
+    graph = {"ends": _pool_ends([g["ends"] for g in graph_runs]),
+             "wall_s": sum(g["wall_s"] for g in graph_runs)}
+    round_ratios = [_ratio(_rate(g["ends"]), 1.0 / c.seconds_per_cycle)
+                    for g, c in zip(graph_runs, core_runs)]
     graph_rate = _rate(graph["ends"])
     core_rate = 1.0 / core.seconds_per_cycle
     graph_cycle_s = 1.0 / graph_rate if graph_rate > 0 else math.nan
-    # The graph executed the same goals as the core loop (same actions, same sim times)?
-    same = graph["actions"] == core.actions
-    first_difference = next((i + 1 for i, (a, b) in enumerate(zip(graph["actions"],
-                                                                   core.actions))
+    # Every graph run executed the same goals as the core loop (same actions, sim times)?
+    same = all(g["actions"] == c.actions for g, c in zip(graph_runs, core_runs))
+    first_difference = next((i + 1 for i, (a, b) in enumerate(zip(graph_runs[0]["actions"],
+                                                                   core_runs[0].actions))
                              if a != b), None)
 
     log(f"roger bench: graph and core at 256 px, {cycles_256} cycles")
@@ -323,6 +368,7 @@ def main_bench(out: Path, quick: bool = False, world: Path | None = None,
     stages["transport"] = round(graph_cycle_s * 1e3 - core.seconds_per_cycle * 1e3, 3)
     result: dict[str, Any] = {
         "graph_vs_core": _ratio(graph_rate, core_rate),
+        "graph_vs_core_rounds": round_ratios,
         "cycle_vs_floor": _ratio(graph_cycle_s, core.floor_per_cycle),
         "core_vs_floor": _ratio(core.seconds_per_cycle, core.floor_per_cycle),
         "scaling_64_vs_4": _ratio(run_large.seconds_per_cycle, run_small.seconds_per_cycle),
@@ -346,7 +392,8 @@ def main_bench(out: Path, quick: bool = False, world: Path | None = None,
         "match_us_1000": match_1000 * 1e6,
         "graph_matches_core": same,
         "first_different_cycle": first_difference,
-        "cycles": {"graph": len(graph["ends"]), "core": core.cycles,
+        "rounds": rounds,
+        "cycles": {"graph": len(graph_runs[0]["ends"]), "core": core_runs[0].cycles,
                    "graph_256": len(graph_256["ends"]), "core_256": core_256.cycles,
                    "scaling_4": run_small.cycles, "scaling_64": run_large.cycles},
         "physics_steps": core.physics_steps,
@@ -389,6 +436,9 @@ def format_table(r: dict[str, Any]) -> str:
                 "floor_ms_per_cycle", "core_vs_floor"):
         lines.append(f"{key:<22} {r[key]:>10.2f}")
     lines.append(f"graph_matches_core     {r['graph_matches_core']!s:>10}")
+    if len(r.get("graph_vs_core_rounds", [])) > 1:
+        each = ", ".join(f"{v:.2f}" for v in r["graph_vs_core_rounds"])
+        lines.append(f"graph_vs_core by round: {each} (pooled above)")
     lines += ["", f"{'stage (core, ms/cycle)':<22} {'ms':>10}", "-" * 34]
     lines += [f"{k:<22} {v:>10.2f}" for k, v in r["stages"].items()]
     return "\n".join(lines)
