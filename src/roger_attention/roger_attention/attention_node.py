@@ -294,14 +294,16 @@ class AttentionNode(Node):
             self.get_logger().error(f"ROI array of goal {msg.goal_id} unusable: {exc}")
             rois = []
         self.ctl.observe(rois, stamp, self._visible(msg.header.stamp))
-        self._publish_map(stamp)
         if is_look(int(msg.goal_id)):
+            self._publish_map(stamp)  # the next look's goal carries its revision
             if self._scan:
                 self._send_look()
             else:
                 self._resumed()
                 self.next_cycle()
             return
+        # No map here: the cycle's end publishes one before the next goal, and the frame of
+        # that goal is perceived with it (publishing a map of ~100 entries costs ~0.7 ms).
         req = self.ctl.match_request()
         if req is None:
             self._end_cycle(None)
