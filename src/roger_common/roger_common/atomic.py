@@ -41,7 +41,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes,
             pass
         raise
     if durable:
-        _fsync_folder(dest.parent)
+        _fsync(dest.parent)
 
 
 def sync_file(path: str | os.PathLike[str] | None) -> None:
@@ -49,19 +49,16 @@ def sync_file(path: str | os.PathLike[str] | None) -> None:
     if path is None:
         return
     try:
-        fd = os.open(path, os.O_RDONLY)
+        _fsync(path)
     except FileNotFoundError:
         return
+    _fsync(Path(path).parent)
+
+
+def _fsync(path: str | os.PathLike[str]) -> None:
+    """fsync a file or a folder by its path."""
+    fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:
         os.close(fd)
-    _fsync_folder(Path(path).parent)
-
-
-def _fsync_folder(folder: Path) -> None:
-    dir_fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)

@@ -160,8 +160,8 @@ class SimNode(Node):
         self.pub_geometry.publish(conv.stereo_geometry_msg(frame, self._map_revision))
         self.pub_left.publish(conv.image_msg(frame.left, stamp, conv.LEFT_FRAME))
         self.pub_right.publish(conv.image_msg(frame.right, stamp, conv.RIGHT_FRAME))
-        # The monitor keeps the labels of recent frames by stamp; they reach it long
-        # before the PolicyState of this frame, which needs perception first.
+        # After the frame: the monitor keeps labels by stamp and holds a frame's
+        # PolicyState until they arrive (monitor_logic.RunMonitor.flush).
         labels = conv.ground_truth_labels_msg(frame)
         if labels is not None:
             self.pub_labels.publish(labels)
