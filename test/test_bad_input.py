@@ -146,8 +146,8 @@ def test_perception_drops_unusable_stereo_pairs_and_keeps_running(no_leaks, ctx)
 
 
 def test_repeated_or_nan_rois_are_refused():
+    from roger_common.conversions import msg_to_rois
     from roger_interfaces.msg import Roi, RoiArray
-    from roger_perception.conversions import msg_to_rois
     good = Roi(id=1, features=[0.5] * FEATURE_DIM, known=[True] * FEATURE_DIM)
     with pytest.raises(MessageError, match="repeat"):
         msg_to_rois(RoiArray(rois=[good, good]))

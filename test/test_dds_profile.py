@@ -66,8 +66,9 @@ def test_segment_holds_two_frame_bursts_at_256_px() -> None:
     """A frame burst (both float32 retinas + both label images) at 256 px, as sent."""
     from rclpy.serialization import serialize_message
 
+    from roger_common.conversions import image_msg
     from roger_common.types import CameraModel, EyePose, StereoFrame
-    from roger_sim.conversions import ground_truth_labels_msg, image_msg
+    from roger_sim.conversions import ground_truth_labels_msg
 
     size = 256
     rng = np.random.default_rng(0)

@@ -11,12 +11,12 @@ from roger_attention.attention_node import AttentionNode
 from roger_bringup.paramdoc import (
     BUILTIN,
     NODE_ORDER,
-    docstring_attributes,
     parameter_table,
     parameters_markdown,
     params_yaml,
 )
 from roger_bringup.view_node import ViewNode
+from roger_common.configdoc import docstring_attributes, field_description
 from roger_memory.memory_node import MemoryNode
 from roger_perception.config import PerceptionConfig
 from roger_perception.perception_node import PerceptionNode
@@ -47,6 +47,19 @@ def test_docstring_attributes_split_shared_entries():
     assert attrs["weight_size"] == attrs["weight_unmapped"]
     assert "activation" in attrs["weight_size"]
     assert attrs["log_sigmas"].endswith("strictly increasing.")
+
+
+def test_a_field_without_a_description_is_refused():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Undocumented:
+        """No attributes section."""
+
+        x: int = 0
+
+    with pytest.raises(KeyError, match="Undocumented.x"):
+        field_description(Undocumented, "x")
 
 
 def _value(v):
@@ -81,8 +94,8 @@ def test_table_matches_the_live_nodes(no_leaks, context):
             for pname, row in documented.items():
                 value = _value(live[pname])
                 assert value == row.default, f"{name}.{pname}: {value!r} != {row.default!r}"
-                if row.source == "node":
-                    assert node.describe_parameter(pname).description == row.meaning
+                # One description, written once: the node says what the table says.
+                assert node.describe_parameter(pname).description == row.meaning
         finally:
             node.destroy_node()
 

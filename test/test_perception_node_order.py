@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from ros_helpers import ros_graph
 
+from roger_common import conversions as sc
 from roger_common.geometry import eye_pose
 from roger_common.types import CameraModel, HapticReading, StereoFrame
 from roger_interfaces.msg import MapEntry, SpatialMap
 from roger_perception import perception_node
 from roger_perception.perception_node import PerceptionNode
-from roger_sim import conversions as sc
 from roger_sim.robot import BASELINE
 
 

@@ -7,10 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roger_common.conversions import eye_pose_msg, msg_to_eye_pose
+from roger_common.conversions import eye_pose_msg, msg_to_eye_pose, msg_to_rois, rois_to_msg
 from roger_common.geometry import eye_pose, quaternion_from_rotation, rotation_from_quaternion
 from roger_common.types import FEATURE_DIM, Roi
-from roger_perception.conversions import msg_to_rois, rois_to_msg
 
 
 def random_quaternion(rng: np.random.Generator) -> np.ndarray:

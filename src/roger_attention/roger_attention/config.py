@@ -13,6 +13,11 @@ from roger_common.errors import ConfigError
 
 #: Names accepted by ``AttentionConfig.policy`` and ``make_policy``.
 POLICY_NAMES: tuple[str, ...] = ("straightforward", "qlearning")
+#: The initial scan's fixation points, flattened x, y, z triples (robot frame, m): five looks
+#: from far left to far right (bearings about +-60, +-28 and 0 degrees) that settle the
+#: pre-attentional map over the whole workspace before the first cycle.
+HOME_TARGETS: tuple[float, ...] = (0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0,
+                                   0.75, -0.4, 0.0, 0.45, -0.7, 0.0)
 
 
 def _check_finite(owner: str, name: str, value: float) -> None:
@@ -121,6 +126,12 @@ class AttentionConfig:
         policy: "straightforward" (section 4.1) or "qlearning" (section 4.2).
         visual_trials: Visual improvements allowed per focus before the match is final.
         haptic_trials: Haptic improvements allowed per focus before the match is final.
+        home_targets: Points (x, y, z triples, robot frame, m) fixated in turn by the
+            initial scan that settles the map before the first cycle (and again whenever
+            the map is empty).
+        visibility_margin: A map place counts as in view (so that not seeing it there
+            counts towards vanishing) when it projects at least this fraction of the
+            retina's width inside the image edge.
         rewards: Reward magnitudes (section 4.2, circumstances a-c).
         qlearning: Q-learning parameters.
         spatial_map: Spatial-map parameters.
@@ -129,6 +140,8 @@ class AttentionConfig:
     policy: str = "straightforward"
     visual_trials: int = 1
     haptic_trials: int = 1
+    home_targets: tuple[float, ...] = HOME_TARGETS
+    visibility_margin: float = 0.1
     rewards: RewardConfig = field(default_factory=RewardConfig)
     qlearning: QLearningConfig = field(default_factory=QLearningConfig)
     spatial_map: SpatialMapConfig = field(default_factory=SpatialMapConfig)
@@ -139,12 +152,60 @@ class AttentionConfig:
                 f"AttentionConfig.policy must be one of {POLICY_NAMES}, got {self.policy!r}")
         _check_count("AttentionConfig", "visual_trials", self.visual_trials)
         _check_count("AttentionConfig", "haptic_trials", self.haptic_trials)
+        targets = self.home_targets
+        if (not isinstance(targets, tuple) or not targets or len(targets) % 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           and math.isfinite(v) for v in targets)):
+            raise ConfigError("AttentionConfig.home_targets must hold finite x, y, z "
+                              f"triples, got {targets!r}")
+        _check_range("AttentionConfig", "visibility_margin", self.visibility_margin, 0.0, 0.5)
         for name, kind in (("rewards", RewardConfig), ("qlearning", QLearningConfig),
                            ("spatial_map", SpatialMapConfig)):
             if not isinstance(getattr(self, name), kind):
                 raise ConfigError(
                     f"AttentionConfig.{name} must be a {kind.__name__}, "
                     f"got {getattr(self, name)!r}")
+
+    @property
+    def scan_targets(self) -> tuple[tuple[float, float, float], ...]:
+        """``home_targets`` as (x, y, z) points."""
+        t = self.home_targets
+        return tuple((float(t[i]), float(t[i + 1]), float(t[i + 2]))
+                     for i in range(0, len(t), 3))
+
+
+@dataclass(frozen=True)
+class AttentionNodeConfig:
+    """What the attention node needs besides the core's AttentionConfig.
+
+    Attributes:
+        seed: Seed of the policy's exploration.
+        qtable_file: Q-table file: loaded at start if it exists, saved atomically after
+            every cycle while learning. Empty: kept in RAM only.
+        learn: Q-learning: update the table (training) or only run it.
+        max_cycles: Stop after this many control cycles; 0 runs until shut down.
+        wait_for_observers: Start only once this many subscriptions listen on
+            /roger/policy_state (the orchestrator's monitor sets 1), so that no cycle goes
+            unrecorded.
+        retry_after_s: Wall seconds without an answer before a goal or request is re-sent.
+    """
+
+    seed: int = 0
+    qtable_file: str = ""
+    learn: bool = True
+    max_cycles: int = field(default=0, metadata={"live": True})
+    wait_for_observers: int = field(default=0, metadata={"live": True})
+    retry_after_s: float = field(default=10.0, metadata={"live": True})
+
+    def __post_init__(self) -> None:
+        _check_count("AttentionNodeConfig", "seed", self.seed)
+        _check_count("AttentionNodeConfig", "max_cycles", self.max_cycles)
+        _check_count("AttentionNodeConfig", "wait_for_observers", self.wait_for_observers)
+        _check_range("AttentionNodeConfig", "retry_after_s", self.retry_after_s, 0.0, 1e6,
+                     low_open=True)
+        if not isinstance(self.qtable_file, str) or not isinstance(self.learn, bool):
+            raise ConfigError("AttentionNodeConfig: qtable_file must be a string and learn "
+                              f"a bool, got {self.qtable_file!r}, {self.learn!r}")
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,13 @@
 """The attention cycle engine: one control cycle = one action (sections 4.1, 4.2 and 5).
 
-The driver (the ROS attention node, or an in-process loop) runs each cycle as::
+The driver (the ROS attention node, or an in-process loop) first runs the initial scan,
+which settles the pre-attentional map over the whole workspace::
 
-    ctl.observe(rois, now, visible)            # every frame, the initial one included
+    while (look := ctl.next_look()) is not None:   # AttentionConfig.home_targets
+        execute look, render, perceive; ctl.observe(rois, now, ctl.visibility(camera, pose))
+
+then runs each cycle as::
+
     plan = ctl.begin_cycle(now)                # the policy picks the action
     if plan.goal:                              # physical action
         execute, render, perceive; ctl.observe(rois, now, visible)
@@ -12,6 +17,10 @@ The driver (the ROS attention node, or an in-process loop) runs each cycle as::
         result = memory(plan.memory_request)
     record = ctl.end_cycle(result, now)
 
+An idle plan (nothing in the map to attend to) queues a new scan: the driver looks again
+(``next_look``) before the next ``begin_cycle``. ``export_state`` and ``restore_state``
+carry what a restarted driver needs to go on where a crashed one stopped.
+
 Nothing here blocks or does I/O; the controller only keeps the state between the calls.
 """
 
@@ -20,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -35,8 +45,11 @@ from roger_attention.fsm import (
 )
 from roger_attention.policies import Policy
 from roger_attention.spatial_map import MapChanges, MapEntry, Position, SpatialMap, VisibleFn
+from roger_common.geometry import in_view
 from roger_common.types import (
     Action,
+    CameraModel,
+    EyePose,
     Goal,
     MatchOutcome,
     MatchResult,
@@ -49,6 +62,17 @@ from roger_common.types import (
 #: Outcome strings of a CycleRecord.
 OUTCOMES: tuple[str, ...] = (
     "identified", "new", "undetermined", "stored", "mapped", "lost", "none")
+#: Goal ids of the looks of the initial scan (not control cycles) start here, far above the
+#: cycles' own ids (1, 2, ...). Each look has an id of its own: with one shared id, a
+#: retried look's late frame answered the next look and started a second chain of cycles.
+LOOK_ID_BASE = 1 << 62
+#: Format tag of ``export_state``.
+STATE_FORMAT = "roger_attention_controller/1"
+
+
+def is_look(goal_id: int) -> bool:
+    """True for the goal id of an initial-scan look."""
+    return goal_id >= LOOK_ID_BASE
 
 
 @dataclass(frozen=True)
@@ -148,11 +172,92 @@ class AttentionController:
         self._pending: _Pending | None = None
         self._next_goal_id = 1
         self._next_request_id = 1
+        self._scan: list[Position] = list(config.scan_targets)
+        self._looks = 0
+        self._restored_places: list[tuple[Position, int]] = []
 
     @property
     def state(self) -> State:
-        """Current FSM state (``.bits`` gives the "nim" string)."""
+        """The FSM state the next cycle starts in (``.bits`` gives the "nim" string); its
+        mapping bit is read from the spatial map now."""
+        self._refresh_state()
         return self._state
+
+    # -- the initial scan ------------------------------------------------------------------
+    @property
+    def scanning(self) -> bool:
+        """True while looks of the initial scan are left (``next_look`` gives them)."""
+        return bool(self._scan)
+
+    def next_look(self) -> Goal | None:
+        """The next look of the initial scan, or None once the scan is over.
+
+        The scan is queued at construction and after an idle plan. Each look is an
+        attention shift to one of ``AttentionConfig.home_targets``, with a goal id of its
+        own (``is_look``); its frame goes to :meth:`observe` like any other. When the scan
+        ends, places mapped before a restart (:meth:`restore_state`) are mapped again.
+        """
+        if not self._scan:
+            if self._restored_places:
+                self.spatial_map.restore_mapped(self._restored_places)
+                self._restored_places = []
+            return None
+        self._looks += 1
+        return Goal(LOOK_ID_BASE + self._looks, Action.ATTENTION_SHIFT, self._scan.pop(0))
+
+    def visibility(self, camera: CameraModel | None, pose: EyePose | None) -> VisibleFn | None:
+        """Whether a map place is in view of the eye ``pose`` (None when either is unknown).
+
+        A place must project ``visibility_margin`` of the retina's width inside its edge:
+        regions cut by the edge are not reliably seen, and must not count as vanished.
+        """
+        if camera is None or pose is None:
+            return None
+        margin = self.config.visibility_margin * camera.width
+        return lambda p: in_view(camera, pose, p, margin)
+
+    # -- resuming after a restart -----------------------------------------------------------
+    def export_state(self) -> dict[str, Any]:
+        """What a restarted controller needs to go on (JSON-ready): counters, next ids,
+        the policy's learnt state and the mapped places."""
+        return {
+            "format": STATE_FORMAT, "policy": self.policy.name,
+            "counters": dataclasses.asdict(self.counters),
+            "next_goal_id": self._next_goal_id, "next_request_id": self._next_request_id,
+            "looks": self._looks, "policy_state": self.policy.state_dict(),
+            "mapped": [{"position": list(p), "address": int(a)}
+                       for p, a in self.spatial_map.mapped_places()],
+        }
+
+    def restore_state(self, state: dict[str, Any]) -> None:
+        """Go on from an ``export_state`` of a controller that stopped (a crash).
+
+        Counters and the policy's state are taken back. Goal and request ids go on after
+        the saved ones, skipping one each: the cycle in flight when the driver stopped may
+        have used them. The places mapped then are mapped again at the end of the next
+        initial scan (the map itself is rebuilt by looking).
+
+        Raises:
+            ValueError: The state is not one of this format and policy, or is corrupt.
+        """
+        try:
+            if state.get("format") != STATE_FORMAT or state["policy"] != self.policy.name:
+                raise ValueError(f"format {state.get('format')!r}, policy "
+                                 f"{state.get('policy')!r}")
+            counters = RunCounters(**state["counters"])
+            goal_id, request_id = int(state["next_goal_id"]), int(state["next_request_id"])
+            looks = int(state["looks"])
+            places = [(tuple(float(v) for v in p["position"]), int(p["address"]))
+                      for p in state["mapped"]]
+            if any(len(p) != 3 for p, _ in places):
+                raise ValueError("a mapped place is not an (x, y, z) position")
+            self.policy.load_state_dict(state["policy_state"])
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"corrupt attention state ({exc!r})") from None
+        self.counters = counters
+        self._next_goal_id, self._next_request_id = goal_id + 1, request_id + 1
+        self._looks = looks
+        self._restored_places = places  # type: ignore[assignment]
 
     @property
     def in_cycle(self) -> bool:
@@ -164,7 +269,11 @@ class AttentionController:
         return self.spatial_map.mapped_positions()
 
     def allowed(self) -> tuple[Action, ...]:
-        """Actions the FSM allows now."""
+        """Actions the FSM allows in the state the next cycle starts in."""
+        self._refresh_state()
+        return self._allowed()
+
+    def _allowed(self) -> tuple[Action, ...]:
         return allowed_actions(self._state, self._visual_left, self._haptic_left,
                                has_focus=self.focus is not None)
 
@@ -188,7 +297,7 @@ class AttentionController:
         self.spatial_map.advance(now)
         self._refresh_state()
         state = self._state
-        allowed = self.allowed()
+        allowed = self._allowed()
         action = Action(self.policy.select_action(state, allowed))
         check_allowed(action, allowed, state)
         cycle = self.counters.cycles + 1
@@ -259,6 +368,7 @@ class AttentionController:
         self.spatial_map.advance(now)
         plan, state = pending.plan, pending.state
         if plan.idle:
+            self._scan = list(self.config.scan_targets)  # nothing to attend to: look again
             return self._record(plan, state, state, 0.0, None, "none", -1)
         entry = self.spatial_map.get(plan.entry_id)
         forgotten: MapEntry | None = None
@@ -288,7 +398,7 @@ class AttentionController:
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
         td = self.policy.update(state, plan.action, r, next_state, is_terminal(plan.action),
-                                self.allowed())
+                                self._allowed())
         if td is not None:
             self.td_errors.append(td)
         if self.focus is not None:

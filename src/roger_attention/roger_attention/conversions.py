@@ -46,9 +46,9 @@ def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_siz
                    map_entries=map_entries, memory_size=memory_size, done=done)
 
 
-def spatial_map_msg(spatial_map: SpatialMap, stamp: float) -> SpatialMapMsg:
-    """The spatial map as a message."""
-    return SpatialMapMsg(header=_header(stamp), entries=[
+def spatial_map_msg(spatial_map: SpatialMap, stamp: float, revision: int = 0) -> SpatialMapMsg:
+    """The spatial map as a message (``revision``: rises with every map published)."""
+    return SpatialMapMsg(header=_header(stamp), revision=int(revision), entries=[
         MapEntry(id=e.entry_id, position=point(e.position), mapped=e.mapped,
                  address=e.address, interest=float(e.interest),
                  activation=float(e.activation) if math.isfinite(e.activation) else 0.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -34,6 +34,18 @@ class Policy(Protocol):
     def update(self, state: State, action: Action, reward: float, next_state: State,
                terminated: bool, next_allowed: Sequence[Action]) -> float | None:
         """Learn from one transition; the TD error, or None when nothing is learnt."""
+        ...
+
+    def state_dict(self) -> dict[str, Any]:
+        """What the policy has learnt, as JSON-ready data (to resume after a crash)."""
+        ...
+
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Write what the policy learnt to ``path`` atomically (nothing if it learns nothing)."""
+        ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Take back what :meth:`state_dict` gave; ValueError when it does not fit."""
         ...
 
 
@@ -69,6 +81,16 @@ class StraightforwardPolicy:
                terminated: bool, next_allowed: Sequence[Action]) -> float | None:
         """Nothing to learn."""
         return None
+
+    def state_dict(self) -> dict[str, Any]:
+        """Nothing learnt: an empty dict."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Nothing to restore."""
+
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Nothing to save."""
 
 
 class QLearningPolicy:
@@ -110,6 +132,17 @@ class QLearningPolicy:
     def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
         """Save the Q-table atomically (``durable``: see atomic_write_bytes)."""
         self.table.save(path, durable=durable)
+
+    def state_dict(self) -> dict[str, Any]:
+        """The Q-values, as nested lists."""
+        return {"q": self.table.q.tolist()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Set the Q-values; ValueError unless they are a finite table of this shape."""
+        q = np.asarray(state["q"], dtype=float)
+        if q.shape != self.table.q.shape or not np.all(np.isfinite(q)):
+            raise ValueError(f"Q-table of shape {q.shape}, expected {self.table.q.shape}")
+        self.table.q[...] = q
 
 
 def make_policy(name: str, config: AttentionConfig, rng: np.random.Generator,

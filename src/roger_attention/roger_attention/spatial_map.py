@@ -232,6 +232,30 @@ class SpatialMap:
         entry.mapped_position = None
         entry.roi = dataclasses.replace(entry.roi, mapped=False)
 
+    def restore_mapped(self, places: Sequence[tuple[Position, int]]) -> list[int]:
+        """Mark again as mapped the entries at places that were mapped before a restart.
+
+        Each place (position, address) goes to the nearest unmapped entry within
+        ``association_radius``, in the order given; a place with no such entry is dropped
+        (the object is gone or out of view, and will be mapped again when seen).
+
+        Returns:
+            The ids of the entries mapped again.
+        """
+        done = []
+        for position, address in places:
+            near = [(_distance(e.position, position), e.entry_id)
+                    for e in self.entries.values() if not e.mapped]
+            if near and min(near)[0] <= self.config.association_radius:
+                entry_id = min(near)[1]
+                self.set_mapped(entry_id, int(address))
+                done.append(entry_id)
+        return done
+
+    def mapped_places(self) -> list[tuple[Position, int]]:
+        """(position, address) of every mapped entry, for :meth:`restore_mapped`."""
+        return [(e.position, e.address) for e in self.entries.values() if e.mapped]
+
     def all_mapped(self) -> bool:
         """True when every entry has mapping status 1 (also for an empty map)."""
         return all(e.mapped for e in self.entries.values())

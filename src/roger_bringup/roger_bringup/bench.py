@@ -35,7 +35,7 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self
 
@@ -120,49 +120,16 @@ def _steady(ends: list[float]) -> float:
     return (ends[-1] - ends[0]) / (len(ends) - 1)
 
 
-@dataclass
-class _Timers:
-    seconds: dict[str, float] = field(default_factory=dict)
-
-    def wrap(self, obj: Any, method: str, stage: str) -> None:
-        """Replace ``obj.method`` (on the instance only) by a timed call."""
-        inner: Callable[..., Any] = getattr(obj, method)
-
-        def timed(*args: Any, **kwargs: Any) -> Any:
-            t0 = time.perf_counter()
-            try:
-                return inner(*args, **kwargs)
-            finally:
-                self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - t0
-        setattr(obj, method, timed)
-
-
 def run_core_timed(world: WorldSpec, cycles: int, seed: int = 0, image_size: int = 128,
                    policy: str = "straightforward") -> CoreRun:
     """Run the core loop for ``cycles`` control cycles, timing every stage.
 
-    Stage times (ms per cycle, over every cycle after the first) come from thin timers
-    put on the loop's objects; the loop's code is unchanged.
+    Stage times (ms per cycle, over every cycle after the first) come from the loop's own
+    ``stage_seconds`` and the simulator's ``floor_seconds``.
     """
     t_start = time.perf_counter()
     loop = CoreLoop(world, policy=policy, seed=seed,
                     sim_config=SimConfig(image_size=image_size))
-    timers = _Timers()
-    timers.wrap(loop.sim, "run_goal", "sim")
-    timers.wrap(loop.perception, "process", "perception")
-    assert loop.memory is not None
-    timers.wrap(loop.memory, "handle", "memory")
-    for name in ("begin_cycle", "end_cycle", "observe", "match_request"):
-        timers.wrap(loop.ctl, name, "policy")
-    perception_stages = dict.fromkeys(STAGES, 0.0)
-    process = loop.perception.process
-
-    def process_and_split(*args: Any, **kwargs: Any) -> Any:
-        out = process(*args, **kwargs)
-        for stage, seconds in loop.perception.last_timings.items():
-            perception_stages[stage] = perception_stages.get(stage, 0.0) + seconds
-        return out
-    loop.perception.process = process_and_split  # type: ignore[method-assign]
     ends: list[float] = []
     floor: list[float] = []
     actions: list[str] = []
@@ -175,31 +142,30 @@ def run_core_timed(world: WorldSpec, cycles: int, seed: int = 0, image_size: int
             actions.append(f"{ACTION_NAMES.get(int(record.action))}@{loop.sim.sim_time:.4f}"
                            f":{record.outcome}:{record.address}")
             if len(ends) == 1:  # stages are counted from the end of the first cycle
-                base = {**timers.seconds, **fs,
-                        **{f"p_{k}": v for k, v in perception_stages.items()}}
+                base = {**loop.stage_seconds, **fs}
         fs = loop.sim.floor_seconds
         steps = loop.sim.physics_steps
     finally:
         loop.close()
-    now = {**timers.seconds, **fs, **{f"p_{k}": v for k, v in perception_stages.items()}}
+    now = {**loop.stage_seconds, **fs}
     n = max(1, len(ends) - 1)
     d = {k: (now.get(k, 0.0) - base.get(k, 0.0)) * 1e3 / n for k in now}
     stages = {
         "render": d.get("render", 0.0),
         "physics": d.get("physics", 0.0),
         "servo_control": d.get("sim", 0.0) - d.get("render", 0.0) - d.get("physics", 0.0),
-        "log": d.get("p_log", 0.0),
-        "segment": d.get("p_segment", 0.0),
-        "stereo_match": d.get("p_match", 0.0),
-        "features": d.get("p_features", 0.0),
-        "activation": d.get("p_activation", 0.0),
+        "log": d.get("perception.log", 0.0),
+        "segment": d.get("perception.segment", 0.0),
+        "stereo_match": d.get("perception.match", 0.0),
+        "features": d.get("perception.features", 0.0),
+        "activation": d.get("perception.activation", 0.0),
         "memory_matching": d.get("memory", 0.0),
         "policy": d.get("policy", 0.0),
     }
     accounted = (d.get("sim", 0.0) + d.get("perception", 0.0) + d.get("memory", 0.0)
                  + d.get("policy", 0.0))
     stages["perception_other"] = d.get("perception", 0.0) - sum(
-        d.get(f"p_{k}", 0.0) for k in STAGES)
+        d.get(f"perception.{k}", 0.0) for k in STAGES)
     stages["loop_other"] = _steady(ends) * 1e3 - accounted if len(ends) > 1 else 0.0
     return CoreRun(cycles=len(ends), ends=ends, floor=floor, stages=stages, actions=actions,
                    physics_steps=steps, wall_s=time.perf_counter() - t_start)

@@ -135,9 +135,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
         def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
             t0 = time.monotonic()
-            recorder, loop = run_core(load_world(world), "qlearning", args.cycles, seed=seed,
-                                      out=run_dir, qtable_path=qtable)
-            loop.policy_obj.save(qtable)
+            # The loop saves the Q-table it learnt to ``qtable`` when it closes.
+            recorder, _ = run_core(load_world(world), "qlearning", args.cycles, seed=seed,
+                                   out=run_dir, qtable_path=qtable)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
     summary = train(args.worlds, seeds, args.cycles, args.out, run_one)

@@ -8,7 +8,9 @@ science without the middleware.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,27 +19,30 @@ import numpy as np
 
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
-from roger_attention.policies import make_policy
+from roger_attention.policies import Policy, make_policy
 from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
-from roger_common.geometry import in_view
-from roger_common.types import Action, Goal, MatchResult, StereoFrame, WorldSpec
+from roger_common.types import Action, MatchResult, StereoFrame, WorldSpec
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 from roger_perception.config import PerceptionConfig
-from roger_perception.perception import Perception
+from roger_perception.perception import STAGES, Perception
 from roger_sim.config import SimConfig
 from roger_sim.simulator import Simulator
 
-#: The initial scan, as the attention node does it (its ``home_targets`` parameter): five
-#: looks from far left to far right (bearings about +-60, +-28 and 0 degrees) that settle
-#: the pre-attentional map over the whole workspace before the first cycle.
-HOME_TARGETS: tuple[tuple[float, float, float], ...] = (
-    (0.45, 0.7, 0.0), (0.75, 0.4, 0.0), (0.9, 0.0, 0.0), (0.75, -0.4, 0.0), (0.45, -0.7, 0.0))
+#: Stages of ``CoreLoop.stage_seconds``: the simulator (servo control, physics, renders),
+#: perception, the memory, the attention controller, and perception's own stages
+#: (``perception.<stage>``, see roger_perception.perception.STAGES).
+LOOP_STAGES: tuple[str, ...] = ("sim", "perception", "memory", "policy",
+                                *(f"perception.{s}" for s in STAGES))
 
 
 @dataclass
 class CoreLoop:
-    """One robot, one world, one policy: ``step()`` runs one control cycle."""
+    """One robot, one world, one policy: ``step()`` runs one control cycle.
+
+    ``agent`` replaces the named policy (e.g. an outside learner choosing every action);
+    ``stage_seconds`` holds the wall seconds spent in each of LOOP_STAGES so far.
+    """
 
     world: WorldSpec
     policy: str = "straightforward"
@@ -49,6 +54,7 @@ class CoreLoop:
     qtable_path: Path | None = None
     learn: bool = True
     memory: AssociativeMemory | None = None
+    agent: Policy | None = None
 
     def __post_init__(self) -> None:
         cfg = self.attention_config or AttentionConfig(policy=self.policy)
@@ -57,42 +63,59 @@ class CoreLoop:
         if self.memory is None:
             self.memory = AssociativeMemory(self.memory_config, seed=self.seed)
         rng = np.random.default_rng(self.seed)
-        self.policy_obj = make_policy(cfg.policy, cfg, rng, qtable_path=self.qtable_path,
-                                      learn=self.learn)
-        self.ctl = AttentionController(cfg, self.policy_obj, rng)
+        chosen = self.agent or make_policy(cfg.policy, cfg, rng, qtable_path=self.qtable_path,
+                                           learn=self.learn)
+        self.ctl = AttentionController(cfg, chosen, rng)
         self.last_frame: StereoFrame | None = None
+        self.stage_seconds: dict[str, float] = dict.fromkeys(LOOP_STAGES, 0.0)
         self._look()
+
+    @contextmanager
+    def _timed(self, stage: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.stage_seconds[stage] += time.perf_counter() - t0
 
     def _perceive(self, frame: StereoFrame) -> None:
         self.last_frame = frame
-        rois = self.perception.process(frame, self.ctl.mapped_positions())
-        pose, camera = frame.left_pose, frame.camera
-        margin = 0.1 * camera.width
-        self.ctl.observe(rois, frame.stamp, lambda p: in_view(camera, pose, p, margin))
+        with self._timed("perception"):
+            rois = self.perception.process(frame, self.ctl.mapped_positions())
+        for stage, seconds in self.perception.last_timings.items():
+            self.stage_seconds[f"perception.{stage}"] += seconds
+        with self._timed("policy"):
+            self.ctl.observe(rois, frame.stamp,
+                             self.ctl.visibility(frame.camera, frame.left_pose))
 
     def _look(self) -> None:
-        for target in HOME_TARGETS:
-            _, frame = self.sim.run_goal(Goal(0, Action.ATTENTION_SHIFT, target))
+        while (look := self.ctl.next_look()) is not None:
+            with self._timed("sim"):
+                _, frame = self.sim.run_goal(look)
             self._perceive(frame)
 
     def step(self) -> CycleRecord | None:
         """One control cycle; None when there was nothing to attend to (an idle look)."""
         assert self.memory is not None
-        plan = self.ctl.begin_cycle(self.sim.sim_time)
+        with self._timed("policy"):
+            plan = self.ctl.begin_cycle(self.sim.sim_time)
         if plan.idle:
             self.ctl.end_cycle(None, self.sim.sim_time)
             self._look()
             return None
         result: MatchResult | None = None
+        request = plan.memory_request
         if plan.goal is not None:
-            _, frame = self.sim.run_goal(plan.goal)
+            with self._timed("sim"):
+                _, frame = self.sim.run_goal(plan.goal)
             self._perceive(frame)
-            req = self.ctl.match_request()
-            if req is not None:
-                result = self.memory.handle(req)
-        elif plan.memory_request is not None:
-            result = self.memory.handle(plan.memory_request)
-        return self.ctl.end_cycle(result, self.sim.sim_time)
+            with self._timed("policy"):
+                request = self.ctl.match_request()
+        if request is not None:
+            with self._timed("memory"):
+                result = self.memory.handle(request)
+        with self._timed("policy"):
+            return self.ctl.end_cycle(result, self.sim.sim_time)
 
     def cycles(self, n: int, max_idle: int = 50) -> Iterator[CycleRecord]:
         """Run until ``n`` control cycles are counted, yielding each record; idle looks (an
@@ -114,7 +137,9 @@ class CoreLoop:
         return object_under_window(frame.left_labels, frame.label_names, record.bbox)
 
     def close(self) -> None:
-        """Release the simulator."""
+        """Release the simulator; a learning Q-table with a file is saved there."""
+        if self.learn and self.qtable_path is not None and self.ctl.policy.learns:
+            self.ctl.policy.save(self.qtable_path)
         self.sim.close()
 
 

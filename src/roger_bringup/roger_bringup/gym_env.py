@@ -29,6 +29,7 @@ Registered as ``Roger/Attention-v0``: ``gymnasium.make("Roger/Attention-v0", max
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,6 +88,16 @@ class ExternalPolicy:
         """Nothing to learn here."""
         return None
 
+    def state_dict(self) -> dict[str, Any]:
+        """Nothing learnt here."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Nothing to restore."""
+
+    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
+        """Nothing to save."""
+
 
 class RogerAttentionEnv(gymnasium.Env):
     """One control cycle of the real robot per step, the agent choosing the action."""
@@ -129,8 +140,7 @@ class RogerAttentionEnv(gymnasium.Env):
         self.configs = {"sim_config": sim_config or SimConfig(),
                         "perception_config": perception_config or PerceptionConfig(),
                         "memory_config": memory_config or MemoryConfig()}
-        # The agent replaces the policy: build the loop with the fixed one, which needs
-        # no Q-table file.
+        # The agent's actions replace the policy's (``CoreLoop.agent``).
         self.attention_config = dataclasses.replace(attention_config or AttentionConfig(),
                                                     policy="straightforward")
         self.action_space = spaces.Discrete(len(ACTIONS))
@@ -157,9 +167,7 @@ class RogerAttentionEnv(gymnasium.Env):
         self._close_loop()
         self.loop = CoreLoop(self.world, policy="straightforward", seed=run_seed,
                              attention_config=self.attention_config, learn=False,
-                             memory=memory, **self.configs)
-        self.loop.ctl.policy = self._policy
-        self.loop.policy_obj = self._policy  # type: ignore[assignment]
+                             memory=memory, agent=self._policy, **self.configs)
         self._steps = 0
         self._last = {"state_before": self._state().bits, "action": None, "bbox": None}
         return self._observation(), self._info(outcome="reset", illegal=False, idle=False,
@@ -226,10 +234,7 @@ class RogerAttentionEnv(gymnasium.Env):
 
     def _state(self) -> State:
         assert self.loop is not None
-        # The controller brings the mapping bit up to date with the map at the start of
-        # each cycle; doing it now makes the observation and the mask those of that cycle.
-        self.loop.ctl._refresh_state()
-        return self.loop.ctl.state
+        return self.loop.ctl.state  # the state the next cycle starts in
 
     def _observation(self) -> Any:
         state = self._state().index

@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import RunMonitor
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE
+from roger_common.ros_node import IMAGES, LATCHED, RELIABLE
 from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 
 #: The node names a complete graph has.

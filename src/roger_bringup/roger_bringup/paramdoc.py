@@ -1,76 +1,53 @@
 """One table of every node parameter, generated from the config dataclasses (issue 10, item 4).
 
-Most parameters of the nodes are the fields of their packages' frozen config dataclasses
-(``roger_common.conversions.declare_config``): their defaults are read from the dataclass
-and their meaning from its ``doc`` field metadata or the ``Attributes:`` section of its
-docstring. The few parameters a node declares itself (world file, seeds, file names...)
-are listed in NODE_PARAMETERS with the same description as in the node;
-test/test_paramdoc.py checks both against live nodes and keeps docs/parameters.md and
-docs/params_example.yaml equal to what this module writes.
+Every parameter of a node is a field of a frozen config dataclass, declared by
+``roger_common.ros_node.declare_config``: the core's config (``SimConfig``...) and the
+node's own (``SimNodeConfig``: world file, seeds, file names...). Defaults are read from
+the dataclass and meanings from ``roger_common.configdoc`` (the ``Attributes:`` section of
+its docstring), exactly as the nodes describe them; test/test_paramdoc.py checks the table
+against live nodes and keeps docs/parameters.md and docs/params_example.yaml equal to
+what this module writes.
 
 Regenerate the docs: ``python -m roger_bringup.paramdoc``.
 """
 
 from __future__ import annotations
 
-import inspect
 import json
-import re
 from dataclasses import MISSING, dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
-from roger_attention.config import AttentionConfig, QLearningConfig, RewardConfig, SpatialMapConfig
-from roger_memory.config import MemoryConfig
+from roger_attention.config import (
+    AttentionConfig,
+    AttentionNodeConfig,
+    QLearningConfig,
+    RewardConfig,
+    SpatialMapConfig,
+)
+from roger_bringup.view_node import ViewNodeConfig
+from roger_common.configdoc import field_description
+from roger_memory.config import MemoryConfig, MemoryNodeConfig
 from roger_perception.config import PerceptionConfig
-from roger_sim.config import SimConfig
+from roger_sim.config import SimConfig, SimNodeConfig
 
 REPO = Path(__file__).resolve().parents[3]
 #: Parameters rclpy gives every node (documented in the text above the table).
 BUILTIN: frozenset[str] = frozenset({"use_sim_time", "start_type_description_service"})
-#: (node name, parameter, default, meaning) of the parameters nodes declare themselves.
-NODE_PARAMETERS: tuple[tuple[str, str, Any, str], ...] = (
-    ("roger_sim", "world", "worlds/table1.yaml", "World file (YAML, docs/world-files.md)"),
-    ("roger_sim", "seed", 0,
-     "Seed of pixel and sensor noise; same seed and world -> same images"),
-    ("roger_memory", "memory_file", "",
-     ("Long-term memory file; loaded at start if it exists, written atomically after each "
-      "store. Empty: memory lives in RAM only.")),
-    ("roger_memory", "seed", 0, "Seed of the network's initial weights and training order"),
-    ("roger_attention", "seed", 0, "Seed of the policy's exploration"),
-    ("roger_attention", "qtable_file", "",
-     ("Q-table file: loaded at start if it exists, saved atomically after every cycle "
-      "while learning. Empty: kept in RAM only.")),
-    ("roger_attention", "learn", True,
-     "Q-learning: update the table (training) or only run it"),
-    ("roger_attention", "max_cycles", 0,
-     "Stop after this many control cycles; 0 runs until shut down"),
-    ("roger_attention", "home_targets",
-     [0.45, 0.7, 0.0, 0.75, 0.4, 0.0, 0.9, 0.0, 0.0, 0.75, -0.4, 0.0, 0.45, -0.7, 0.0],
-     ("Points (x, y, z triples, robot frame, m) fixated in turn by the initial scan that "
-      "settles the map before the first cycle")),
-    ("roger_attention", "wait_for_observers", 0,
-     ("Start only once this many subscriptions listen on /roger/policy_state (the "
-      "orchestrator's monitor sets 1), so that no cycle goes unrecorded")),
-    ("roger_attention", "retry_after_s", 10.0,
-     "Wall seconds without an answer before a goal or request is re-sent"),
-    ("roger_view", "out_dir", "",
-     "Folder for PNG frames and view.gif; empty: publish /roger/view only"),
-    ("roger_view", "scale", 2, "Integer magnification of the retinas in the view"),
-    ("roger_view", "fps", 4.0, "Frames per second of view.gif"),
-    ("roger_view", "association_radius", 0.15,
-     ("A ROI takes the interest of the spatial-map entry within this distance (m); as "
-      "spatial_map.association_radius of the attention node")),
-)
-#: (node name, parameter prefix, config dataclass) of the generated parameters.
+#: (node name, parameter prefix, config dataclass) of every node's parameters, in the order
+#: the table lists them.
 NODE_CONFIGS: tuple[tuple[str, str, type], ...] = (
+    ("roger_sim", "", SimNodeConfig),
     ("roger_sim", "", SimConfig),
     ("roger_perception", "", PerceptionConfig),
+    ("roger_memory", "", MemoryNodeConfig),
     ("roger_memory", "", MemoryConfig),
+    ("roger_attention", "", AttentionNodeConfig),
     ("roger_attention", "", AttentionConfig),
     ("roger_attention", "rewards.", RewardConfig),
     ("roger_attention", "qlearning.", QLearningConfig),
     ("roger_attention", "spatial_map.", SpatialMapConfig),
+    ("roger_view", "", ViewNodeConfig),
 )
 #: Node names in table order, with what runs them.
 NODE_ORDER: tuple[tuple[str, str], ...] = (
@@ -90,37 +67,6 @@ class ParamRow:
     source: str
 
 
-def docstring_attributes(cls: type) -> dict[str, str]:
-    """Field descriptions of a Google-style ``Attributes:`` section, joined to one line.
-
-    An entry naming several fields ("a, b, c: ...") describes each of them.
-    """
-    doc = inspect.getdoc(cls) or ""
-    out: dict[str, str] = {}
-    in_section, names, text = False, [], []
-
-    def flush() -> None:
-        for n in names:
-            out[n] = " ".join(text).strip()
-
-    for line in doc.splitlines():
-        if line.strip() == "Attributes:":
-            in_section = True
-            continue
-        if not in_section:
-            continue
-        if line and not line.startswith(" "):
-            break  # the next section
-        m = re.match(r"^ {4}([A-Za-z_][\w, ]*):\s*(.*)$", line)
-        if m:
-            flush()
-            names, text = [n.strip() for n in m.group(1).split(",")], [m.group(2)]
-        elif line.startswith("     ") and names:
-            text.append(line.strip())
-    flush()
-    return out
-
-
 def _default(f: Any) -> Any:
     if f.default is not MISSING:
         return f.default
@@ -131,7 +77,6 @@ def _default(f: Any) -> Any:
 
 def config_rows(node: str, prefix: str, cls: type) -> list[ParamRow]:
     """The parameters ``declare_config`` makes of a config dataclass (nested ones skipped)."""
-    attrs = docstring_attributes(cls)
     rows = []
     for f in fields(cls):
         default = _default(f)
@@ -139,18 +84,15 @@ def config_rows(node: str, prefix: str, cls: type) -> list[ParamRow]:
             continue
         if isinstance(default, tuple):
             default = list(default)
-        meaning = (f.metadata or {}).get("doc") or attrs.get(f.name) or \
-            f"{cls.__name__}.{f.name}"
-        rows.append(ParamRow(node, prefix + f.name, default, meaning, cls.__name__))
+        rows.append(ParamRow(node, prefix + f.name, default, field_description(cls, f.name),
+                             cls.__name__))
     return rows
 
 
 def parameter_table() -> list[ParamRow]:
-    """Every parameter of the five nodes, node by node (own parameters first)."""
+    """Every parameter of the five nodes, node by node."""
     rows: list[ParamRow] = []
     for node, _ in NODE_ORDER:
-        rows += [ParamRow(n, name, default, meaning, "node")
-                 for n, name, default, meaning in NODE_PARAMETERS if n == node]
         for n, prefix, cls in NODE_CONFIGS:
             if n == node:
                 rows += config_rows(node, prefix, cls)

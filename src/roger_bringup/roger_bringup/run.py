@@ -221,7 +221,9 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     try:
         graph.start()
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while not monitor.graph_up():
+        # A recorded cycle proves the graph up too: on a loaded machine the node names can
+        # reach this process's graph cache seconds after the nodes are talking.
+        while not (monitor.graph_up() or monitor.cycles > 0):
             executor.spin_once(timeout_sec=0.1)
             _check_children(graph, restart=False)
             if time.monotonic() > deadline:

@@ -13,12 +13,13 @@ Run alone: ``python -m roger_bringup.view_node --ros-args -p out_dir:=runs/view`
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
@@ -26,14 +27,40 @@ from roger_bringup.conversions import map_interests, view_to_msg
 from roger_bringup.evaluation import ACTION_NAMES
 from roger_bringup.monitor_logic import COUNTER_FIELDS
 from roger_bringup.view import ViewWriter, compose_view, interests_by_roi
-from roger_common.conversions import IMAGES, LATCHED, RELIABLE, spin_node
-from roger_common.errors import MessageError, RogerError
+from roger_common.conversions import image_to_array, msg_to_rois
+from roger_common.errors import ConfigError, MessageError
+from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, declare_config, spin_node
 from roger_common.types import Action, Roi
 from roger_interfaces.msg import Metrics, PolicyState, RoiArray, SpatialMap
-from roger_perception.conversions import image_to_array, msg_to_rois
 
 #: Stereo pairs kept by stamp until a policy state refers to them.
 FRAMES_KEPT = 16
+
+
+@dataclass(frozen=True)
+class ViewNodeConfig:
+    """Parameters of the view node.
+
+    Attributes:
+        out_dir: Folder for PNG frames and view.gif; empty: publish /roger/view only.
+        scale: Integer magnification of the retinas in the view.
+        fps: Frames per second of view.gif.
+        association_radius: A ROI takes the interest of the spatial-map entry within this
+            distance (m); as spatial_map.association_radius of the attention node.
+    """
+
+    out_dir: str = ""
+    scale: int = 2
+    fps: float = 4.0
+    association_radius: float = 0.15
+
+    def __post_init__(self) -> None:
+        if isinstance(self.scale, bool) or not isinstance(self.scale, int) or self.scale < 1:
+            raise ConfigError(f"ViewNodeConfig.scale must be an integer >= 1, got {self.scale!r}")
+        for name in ("fps", "association_radius"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ConfigError(f"ViewNodeConfig.{name} must be a number > 0, got {value!r}")
 
 
 class ViewNode(Node):
@@ -53,22 +80,10 @@ class ViewNode(Node):
             **node_kwargs: Passed to ``Node`` (``context=``, ``parameter_overrides=``...).
         """
         super().__init__("roger_view", **node_kwargs)
-        p = self.declare_parameter
-        p("out_dir", "", ParameterDescriptor(
-            description="Folder for PNG frames and view.gif; empty: publish /roger/view only"))
-        p("scale", 2, ParameterDescriptor(
-            description="Integer magnification of the retinas in the view"))
-        p("fps", 4.0, ParameterDescriptor(description="Frames per second of view.gif"))
-        p("association_radius", 0.15, ParameterDescriptor(
-            description="A ROI takes the interest of the spatial-map entry within this "
-                        "distance (m); as spatial_map.association_radius of the attention node"))
-        self.scale = int(self.get_parameter("scale").value)
-        if self.scale < 1:
-            raise RogerError(f"roger_view: parameter scale must be >= 1, got {self.scale}")
-        self.radius = float(self.get_parameter("association_radius").value)
-        folder = out_dir if out_dir is not None else str(self.get_parameter("out_dir").value)
-        self.writer = ViewWriter(Path(folder), float(self.get_parameter("fps").value)) \
-            if folder else None
+        cfg = declare_config(self, ViewNodeConfig)
+        self.scale, self.radius = cfg.scale, cfg.association_radius
+        folder = out_dir if out_dir is not None else cfg.out_dir
+        self.writer = ViewWriter(Path(folder), cfg.fps) if folder else None
         self.published = 0
         self._frames: OrderedDict[tuple[int, int], dict[str, Any]] = OrderedDict()
         self._latest: tuple[int, int] | None = None

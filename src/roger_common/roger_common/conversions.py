@@ -1,37 +1,46 @@
-"""ROS helpers shared by every package's node and conversions (QoS, time, poses, parameters).
+"""Messages <-> the plain types of roger_common.types: every conversion of a shared type.
 
-The only module of roger_common that imports rclpy; the core modules never do.
+The types the packages exchange (goals, stereo frames, haptic readings, ROIs, memory
+requests and results) are roger_common's, so their conversions live here, next to them:
+sim, perception, memory and attention convert through this module and never import one
+another. Conversions of a package's own types stay in that package's ``conversions.py``.
+Node plumbing (QoS, parameters, ``spin_node``) is in ``ros_node``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, fields, is_dataclass, replace
-from typing import Any, TypeVar
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
 
+from roger_common.errors import MessageError
 from roger_common.geometry import eye_pose, quaternion_from_rotation, rotation_from_quaternion
-from roger_common.types import EyePose
+from roger_common.types import (
+    FEATURE_DIM,
+    Action,
+    CameraModel,
+    EyePose,
+    Goal,
+    HapticReading,
+    MatchOutcome,
+    MatchResult,
+    MemoryOp,
+    MemoryRequest,
+    Roi,
+    StereoFrame,
+)
+from roger_interfaces.msg import ActionGoal, MemoryResult, RoiArray, StereoGeometry
+from roger_interfaces.msg import HapticReading as HapticReadingMsg
+from roger_interfaces.msg import MemoryRequest as MemoryRequestMsg
+from roger_interfaces.msg import Roi as RoiMsg
 
-#: Commands and state: reliable, depth 10 (house style).
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                      history=HistoryPolicy.KEEP_LAST)
-#: Retinal images. Reliable rather than the sensor-data profile on purpose: every control
-#: cycle waits for the stereo pair rendered after its goal, so a dropped pair would stall it.
-IMAGES = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                    history=HistoryPolicy.KEEP_LAST)
-#: One-shot data (world description, spatial map, ground truth): latched.
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     history=HistoryPolicy.KEEP_LAST)
-
-C = TypeVar("C")
+LEFT_FRAME = "roger_left_eye"
+RIGHT_FRAME = "roger_right_eye"
+ROBOT_FRAME = "roger_base"
 
 
 def seconds_to_time(t: float) -> Time:
@@ -85,123 +94,208 @@ def msg_to_eye_pose(p: Pose) -> EyePose:
     return eye_pose(point_tuple(p.position), (o.x, o.y, o.z, o.w))
 
 
-def declare_config(node: Node, config_cls: type[C], prefix: str = "",
-                   overrides: dict[str, Any] | None = None, **nested: Any) -> C:
-    """Declare one ROS parameter per field of a frozen config dataclass and build it.
+def header(stamp: float, frame_id: str = ROBOT_FRAME) -> Header:
+    """A std_msgs/Header at simulated time ``stamp``."""
+    return Header(stamp=seconds_to_time(stamp), frame_id=frame_id)
 
-    Values flow one way: ROS parameters -> config -> core. Tuple fields become arrays.
-    The dataclass's own validation (``__post_init__``) rejects bad values; the caller
-    lets that error reach ``main``.
 
-    Args:
-        node: The node that owns the parameters.
-        config_cls: A dataclass whose fields all have defaults.
-        prefix: Prepended to each parameter name, e.g. ``"memory."``.
-        overrides: Defaults to use instead of the dataclass's (still overridable by the user).
-        **nested: Values of fields that hold a nested config dataclass (declared by the
-            caller with their own prefix); such fields are not declared here.
+# -- goals -------------------------------------------------------------------------------
+def goal_to_msg(goal: Goal, stamp: float, map_revision: int = 0) -> ActionGoal:
+    """A core Goal as an ActionGoal; ``map_revision``: the spatial map to perceive it with."""
+    return ActionGoal(header=header(stamp), goal_id=goal.goal_id, action=int(goal.action),
+                      target=point(goal.target), arm=goal.arm, map_revision=int(map_revision))
+
+
+def msg_to_goal(msg: ActionGoal) -> Goal:
+    """An ActionGoal as a core Goal. Raises ValueError on an unknown action."""
+    action = Action(msg.action)
+    if action == Action.MAP_UPDATE:
+        raise ValueError("a map update is not a physical goal")
+    target = point_tuple(msg.target)
+    if not all(math.isfinite(v) for v in target):
+        raise ValueError(f"goal {msg.goal_id}: target {target} is not finite")
+    return Goal(goal_id=int(msg.goal_id), action=action, target=target, arm=int(msg.arm))
+
+
+# -- retinas and their geometry ----------------------------------------------------------
+def image_msg(img: np.ndarray, stamp: float, frame_id: str) -> Image:
+    """A float32 retina image in [0, 1] as a 32FC1 sensor_msgs/Image."""
+    data = np.ascontiguousarray(img, dtype=np.float32)
+    h, w = data.shape
+    return Image(header=header(stamp, frame_id), height=h, width=w, encoding="32FC1",
+                 is_bigendian=0, step=4 * w, data=data.tobytes())
+
+
+def image_to_array(msg: Image) -> np.ndarray:
+    """A retina image (32FC1 in [0, 1], or mono8) as float32 (H, W). Raises MessageError."""
+    if msg.encoding == "32FC1":
+        if msg.step != 4 * msg.width or len(msg.data) != msg.step * msg.height:
+            raise MessageError(f"32FC1 image {msg.width}x{msg.height}: step {msg.step} and "
+                               f"{len(msg.data)} bytes do not fit")
+        img = np.frombuffer(bytes(msg.data), dtype="<f4" if not msg.is_bigendian else ">f4")
+        img = img.reshape(msg.height, msg.width).astype(np.float32)
+    elif msg.encoding == "mono8":
+        if len(msg.data) != msg.step * msg.height or msg.step < msg.width:
+            raise MessageError(f"mono8 image {msg.width}x{msg.height}: wrong data size")
+        rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
+        img = rows[:, : msg.width].astype(np.float32) / 255.0
+    else:
+        raise MessageError(f"image encoding {msg.encoding!r} not supported (use 32FC1 or mono8)")
+    if not np.all(np.isfinite(img)):
+        raise MessageError("image holds NaN or infinite values")
+    return img
+
+
+def camera_info_msg(camera: CameraModel, stamp: float, frame_id: str,
+                    baseline: float, right: bool) -> CameraInfo:
+    """CameraInfo of one retina; the right one carries -f*baseline in P like a stereo rig."""
+    f = camera.focal_px
+    cx, cy = camera.width / 2.0, camera.height / 2.0
+    tx = -f * baseline if right else 0.0
+    return CameraInfo(
+        header=header(stamp, frame_id), height=camera.height, width=camera.width,
+        distortion_model="plumb_bob", d=[0.0] * 5,
+        k=[f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0],
+        r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p=[f, 0.0, cx, tx, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+def camera_from_info(msg: CameraInfo) -> CameraModel:
+    """The pinhole model of a CameraInfo (fx from K). Raises MessageError when unusable."""
+    focal = float(msg.k[0])
+    if msg.width <= 0 or msg.height <= 0 or not math.isfinite(focal) or focal <= 0:
+        raise MessageError(f"camera info {msg.width}x{msg.height} with focal length {focal} "
+                           "is unusable (need a positive size and focal length)")
+    return CameraModel(width=int(msg.width), height=int(msg.height), focal_px=focal)
+
+
+def stereo_geometry_msg(frame: StereoFrame, map_revision: int = 0) -> StereoGeometry:
+    """The eye poses of a stereo pair; ``map_revision`` comes from the goal that made it."""
+    return StereoGeometry(
+        header=header(frame.stamp), goal_id=frame.goal_id,
+        left_eye=eye_pose_msg(frame.left_pose), right_eye=eye_pose_msg(frame.right_pose),
+        exposures=frame.exposures, map_revision=int(map_revision),
+        haptic=frame.haptic is not None)
+
+
+def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
+    """Left and right eye poses of a StereoGeometry message. Raises MessageError on NaN."""
+    def one(p: Pose) -> EyePose:
+        pose = msg_to_eye_pose(p)
+        if not (np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.rotation))):
+            raise MessageError(f"stereo geometry of goal {msg.goal_id}: eye pose not finite")
+        return pose
+    return one(msg.left_eye), one(msg.right_eye)
+
+
+# -- touch -------------------------------------------------------------------------------
+def haptic_msg(reading: HapticReading, goal_id: int, stamp: float) -> HapticReadingMsg:
+    """A core HapticReading as a message."""
+    return HapticReadingMsg(header=header(stamp), goal_id=goal_id, arm=reading.arm,
+                            contact=reading.contact, position=point(reading.position),
+                            weight=float(reading.weight))
+
+
+def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
+    """A haptic message as a core reading.
+
+    A reading without contact (the hand closed on nothing) carries NaN weight and is kept
+    as it is. Raises MessageError on a contact with a NaN or negative weight or position.
     """
-    values: dict[str, Any] = dict(nested)
-    for f in fields(config_cls):  # type: ignore[arg-type]
-        if f.name in nested:
-            continue
-        if f.default is not MISSING:
-            default = f.default
-        elif f.default_factory is not MISSING:  # type: ignore[misc]
-            default = f.default_factory()  # type: ignore[misc]
-        else:
-            continue
-        if overrides and f.name in overrides:
-            default = overrides[f.name]
-        if isinstance(default, tuple):
-            default = list(default)
-        if default is None or is_dataclass(default):
-            continue
-        doc = (f.metadata or {}).get("doc", f"{config_cls.__name__}.{f.name}")
-        node.declare_parameter(prefix + f.name, default,
-                               ParameterDescriptor(description=doc))
-        value = node.get_parameter(prefix + f.name).value
-        if isinstance(default, list):
-            value = tuple(value)
-        values[f.name] = value
-    return config_cls(**values)  # type: ignore[call-arg]
+    if not msg.contact:
+        return HapticReading(arm=int(msg.arm), contact=False,
+                             position=point_tuple(msg.position), weight=float(msg.weight))
+    if not math.isfinite(msg.weight) or msg.weight < 0:
+        raise MessageError(f"haptic reading of goal {msg.goal_id}: weight {msg.weight} unusable")
+    if not all(math.isfinite(v) for v in point_tuple(msg.position)):
+        raise MessageError(f"haptic reading of goal {msg.goal_id}: position not finite")
+    return HapticReading(arm=int(msg.arm), contact=bool(msg.contact),
+                         position=point_tuple(msg.position), weight=float(msg.weight))
 
 
-def guard_parameters(node: Node, config_cls: type[C], prefix: str, get_config: Any,
-                     apply: Any = None) -> None:
-    """Validate parameter changes at set time against the config dataclass.
-
-    A value the dataclass rejects is refused with its reason. A valid value is applied
-    through ``apply(new_config)`` when the node supports live changes, and refused as
-    "read at start only" otherwise.
-
-    Args:
-        node: The node that owns the parameters.
-        config_cls: The dataclass the parameters were declared from.
-        prefix: The parameter name prefix used in ``declare_config``.
-        get_config: Callable returning the config in force.
-        apply: Callable taking the new config, or None.
-    """
-    names = {prefix + f.name: f.name for f in fields(config_cls)}  # type: ignore[arg-type]
-
-    def _check(params: list[Any]) -> SetParametersResult:
-        changes = {names[p.name]: (tuple(p.value) if isinstance(p.value, list) else p.value)
-                   for p in params if p.name in names}
-        if not changes:
-            return SetParametersResult(successful=True)
-        try:
-            new = replace(get_config(), **changes)
-        except (ValueError, TypeError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        if apply is None:
-            return SetParametersResult(
-                successful=False,
-                reason=f"{', '.join(prefix + n for n in changes)}: read at start only; "
-                       "restart the node to change it")
-        apply(new)
-        return SetParametersResult(successful=True)
-
-    node.add_on_set_parameters_callback(_check)
+# -- regions of interest -----------------------------------------------------------------
+def roi_to_msg(roi: Roi) -> RoiMsg:
+    """A core Roi as a message."""
+    x0, y0, x1, y1 = roi.bbox
+    return RoiMsg(id=int(roi.roi_id), x0=int(x0), y0=int(y0), x1=int(x1), y1=int(y1),
+                  position=point(roi.position),
+                  features=[float(v) for v in roi.features], known=[bool(k) for k in roi.known],
+                  activation=float(roi.activation), retinal_size=float(roi.retinal_size),
+                  mean_intensity=float(roi.mean_intensity), motion=float(roi.motion),
+                  tactile=float(roi.tactile), mapped=bool(roi.mapped))
 
 
-def spin_node(factory: Any, prog: str, args: list[str] | None = None,
-              setup: Any = None) -> None:
-    """The ``main`` of every Roger node: init, build, spin, and shut down cleanly.
+def msg_to_roi(msg: RoiMsg) -> Roi:
+    """A Roi message as a core Roi. Raises MessageError on a malformed one."""
+    features = np.asarray(msg.features, dtype=np.float32)
+    known = np.asarray(msg.known, dtype=bool)
+    if features.shape != (FEATURE_DIM,) or known.shape != (FEATURE_DIM,):
+        raise MessageError(f"ROI {msg.id}: {features.size} features and {known.size} known "
+                           f"flags, expected {FEATURE_DIM} each")
+    if not np.all(np.isfinite(features)) or features.min() < -1e-6 or features.max() > 1 + 1e-6:
+        raise MessageError(f"ROI {msg.id}: features outside [0, 1] or NaN")
+    pos = point_tuple(msg.position)
+    if not all(math.isfinite(v) for v in pos):
+        raise MessageError(f"ROI {msg.id}: position {pos} is not finite")
+    return Roi(roi_id=int(msg.id), bbox=(msg.x0, msg.y0, msg.x1, msg.y1), position=pos,
+               features=features, known=known, activation=float(msg.activation),
+               retinal_size=float(msg.retinal_size), mean_intensity=float(msg.mean_intensity),
+               motion=float(msg.motion), tactile=float(msg.tactile), mapped=bool(msg.mapped))
 
-    Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException) end the spin
-    quietly. A setup failure (a bad world file, parameter or memory file: RogerError,
-    ValueError, OSError) prints one line ``prog: message`` and exits with status 2, which
-    the orchestrator reads as "do not restart".
 
-    Args:
-        factory: Callable returning the node (called after ``rclpy.init``).
-        prog: Program name for the error line, e.g. ``"roger-sim"``.
-        args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
-        setup: Optional callable run once before ``rclpy.init``.
-    """
-    import os
-    import sys
+def rois_to_msg(rois: list[Roi], stamp: float, goal_id: int) -> RoiArray:
+    """All ROIs of one stereo pair."""
+    return RoiArray(header=header(stamp), goal_id=int(goal_id),
+                    rois=[roi_to_msg(r) for r in rois])
 
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
 
-    from roger_common.dds import apply_dds_defaults
-    from roger_common.errors import RogerError
+def msg_to_rois(msg: RoiArray) -> list[Roi]:
+    """A RoiArray as core Rois (raises MessageError on the first malformed ROI)."""
+    ids = [int(r.id) for r in msg.rois]
+    if len(set(ids)) != len(ids):
+        raise MessageError(f"ROI array of goal {msg.goal_id}: ROI ids repeat ({ids})")
+    return [msg_to_roi(r) for r in msg.rois]
 
-    if setup is not None:
-        setup()
-    apply_dds_defaults(os.environ)
-    rclpy.init(args=args)
-    node = None
+
+# -- the associative memory --------------------------------------------------------------
+def msg_to_request(msg: MemoryRequestMsg) -> MemoryRequest:
+    """A request message as a core MemoryRequest. Raises MessageError when unusable."""
     try:
-        node = factory()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError, OSError) as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        op = MemoryOp(msg.op)
+    except ValueError:
+        raise MessageError(f"request {msg.request_id}: unknown op {msg.op} (0 match, 1 store)")
+    features = np.asarray(msg.features, dtype=np.float32)
+    known = np.asarray(msg.known, dtype=bool)
+    if features.shape != (FEATURE_DIM,) or known.shape != (FEATURE_DIM,):
+        raise MessageError(f"request {msg.request_id}: {features.size} features and "
+                           f"{known.size} known flags, expected {FEATURE_DIM} each")
+    if not np.all(np.isfinite(features[known])):
+        raise MessageError(f"request {msg.request_id}: NaN or infinite features")
+    if features[known].size and (features[known].min() < -1e-6
+                                 or features[known].max() > 1 + 1e-6):
+        raise MessageError(f"request {msg.request_id}: features outside [0, 1]")
+    return MemoryRequest(request_id=int(msg.request_id), op=op,
+                         features=np.clip(np.nan_to_num(features), 0.0, 1.0), known=known,
+                         final_trial=bool(msg.final_trial))
+
+
+def request_to_msg(req: MemoryRequest, stamp: float) -> MemoryRequestMsg:
+    """A core MemoryRequest as a message."""
+    return MemoryRequestMsg(header=Header(stamp=seconds_to_time(stamp)),
+                            request_id=int(req.request_id), op=int(req.op),
+                            features=[float(v) for v in req.features],
+                            known=[bool(k) for k in req.known], final_trial=req.final_trial)
+
+
+def result_to_msg(request_id: int, op: MemoryOp, result: MatchResult, memory_size: int,
+                  stamp: float) -> MemoryResult:
+    """A core MatchResult as the reply to request ``request_id``."""
+    return MemoryResult(header=Header(stamp=seconds_to_time(stamp)), request_id=int(request_id),
+                        op=int(op), outcome=int(result.outcome), address=int(result.address),
+                        confidence=float(result.confidence), memory_size=int(memory_size))
+
+
+def msg_to_result(msg: MemoryResult) -> MatchResult:
+    """A reply message as a core MatchResult."""
+    return MatchResult(outcome=MatchOutcome(msg.outcome), address=int(msg.address),
+                       confidence=float(msg.confidence))

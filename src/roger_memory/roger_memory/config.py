@@ -164,3 +164,24 @@ def _positive_int(name: str, value: int) -> None:
 
 #: The defaults, shared (the dataclass is frozen).
 DEFAULT_CONFIG = MemoryConfig()
+
+
+@dataclass(frozen=True)
+class MemoryNodeConfig:
+    """What the memory node needs besides MemoryConfig.
+
+    Attributes:
+        memory_file: Long-term memory file; loaded at start if it exists, written
+            atomically after each store. Empty: memory lives in RAM only.
+        seed: Seed of the network's initial weights and training order.
+    """
+
+    memory_file: str = ""
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.memory_file, str):
+            raise ConfigError(f"MemoryNodeConfig.memory_file must be a file name, got "
+                              f"{self.memory_file!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"MemoryNodeConfig.seed must be an integer >= 0, got {self.seed!r}")

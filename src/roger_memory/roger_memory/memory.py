@@ -93,6 +93,19 @@ class AssociativeMemory:
         self._check_address(address)
         return self._known[self._addresses == address].copy()
 
+    def find_exact(self, features: np.ndarray, known: np.ndarray) -> int | None:
+        """Lowest address holding an exemplar equal to this pattern, or None.
+
+        Equal means the same known mask and the same value of every known feature: a
+        STORE sent again after its reply was lost (the requester re-sends what it sent)
+        is recognised, never a new look at an object.
+        """
+        x, k = _validate(features, known)
+        same = np.all(self._known == k, axis=1) & np.all(
+            np.where(k, self._exemplars == x, True), axis=1)
+        hits = self._addresses[same]
+        return int(hits.min()) if hits.size else None
+
     def distances(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
         """Distance of a pattern to every address (inf where no exemplar matches).
 

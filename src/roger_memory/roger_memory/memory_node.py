@@ -16,26 +16,16 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
+from roger_common import conversions as conv
 from roger_common.atomic import sync_file
-from roger_common.conversions import (
-    LATCHED,
-    RELIABLE,
-    declare_config,
-    guard_parameters,
-    spin_node,
-    time_to_seconds,
-)
 from roger_common.errors import MessageError
+from roger_common.ros_node import LATCHED, RELIABLE, declare_config, guard_parameters, spin_node
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp
-from roger_common.types import MemoryRequest as CoreRequest
 from roger_interfaces.msg import MemoryRequest, MemoryResult
-from roger_memory import conversions as conv
-from roger_memory.config import MemoryConfig
+from roger_memory.config import MemoryConfig, MemoryNodeConfig
 from roger_memory.memory import AssociativeMemory
 
 #: Replies kept for re-sent requests.
@@ -47,16 +37,13 @@ class MemoryNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_memory", **kwargs)
-        self.declare_parameter("memory_file", "", ParameterDescriptor(
-            description="Long-term memory file; loaded at start if it exists, written "
-                        "atomically after each store. Empty: memory lives in RAM only."))
-        self.declare_parameter("seed", 0, ParameterDescriptor(
-            description="Seed of the network's initial weights and training order"))
+        self.node_config = declare_config(self, MemoryNodeConfig)
+        guard_parameters(self, MemoryNodeConfig, "", lambda: self.node_config)
         self.config = declare_config(self, MemoryConfig)
         guard_parameters(self, MemoryConfig, "", lambda: self.config)
-        path = str(self.get_parameter("memory_file").value)
+        path = self.node_config.memory_file
         self.path = Path(path) if path else None
-        seed = int(self.get_parameter("seed").value)
+        seed = self.node_config.seed
         if self.path is not None and self.path.exists():
             # A corrupt file stops the node with one line (MemoryFileError, in main); the
             # orchestrator checks the file before it starts anything.
@@ -72,7 +59,7 @@ class MemoryNode(Node):
 
     def on_request(self, msg: MemoryRequest) -> None:
         """Match or store, then reply; a malformed request is logged and answered as such."""
-        stamp = time_to_seconds(msg.header.stamp)
+        stamp = conv.time_to_seconds(msg.header.stamp)
         try:
             req = conv.msg_to_request(msg)
         except MessageError as exc:
@@ -83,7 +70,11 @@ class MemoryNode(Node):
             self.get_logger().warn(f"request {req.request_id} received again: same answer")
             self.pub_result.publish(cached)
             return
-        stored = self._stored_address(req) if req.op == MemoryOp.STORE else None
+        stored = self.memory.find_exact(req.features, req.known) \
+            if req.op == MemoryOp.STORE else None
+        if stored is not None:
+            self.get_logger().warn(f"store {req.request_id}: already stored at address "
+                                   f"{stored} (a re-sent request)")
         try:
             result = (self.memory.handle(req) if stored is None
                       else MatchResult(MatchOutcome.NEW, stored, 1.0))
@@ -111,18 +102,6 @@ class MemoryNode(Node):
         """Flush the memory file (written after each store without fsync) to the disk."""
         sync_file(self.path)
         super().destroy_node()
-
-    def _stored_address(self, req: CoreRequest) -> int | None:
-        """Address of an exemplar equal to the request's pattern (a STORE sent again)."""
-        for address in range(self.memory.size):
-            ex, kn = self.memory.exemplars(address), self.memory.exemplar_known(address)
-            same = np.all(kn == req.known, axis=1) & np.all(
-                np.where(req.known, ex == req.features, True), axis=1)
-            if np.any(same):
-                self.get_logger().warn(f"store {req.request_id}: already stored at address "
-                                       f"{address} (a re-sent request)")
-                return address
-        return None
 
 
 def main(args: list[str] | None = None) -> None:

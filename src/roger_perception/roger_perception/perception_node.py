@@ -12,16 +12,16 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from roger_common.conversions import (
+from roger_common import conversions as common
+from roger_common.errors import MessageError
+from roger_common.ros_node import (
     IMAGES,
     LATCHED,
     RELIABLE,
     declare_config,
     guard_parameters,
     spin_node,
-    time_to_seconds,
 )
-from roger_common.errors import MessageError
 from roger_common.types import HapticReading, StereoFrame
 from roger_interfaces.msg import HapticReading as HapticReadingMsg
 from roger_interfaces.msg import RoiArray, SpatialMap, StereoGeometry
@@ -75,7 +75,7 @@ class PerceptionNode(Node):
     def on_haptic(self, msg: HapticReadingMsg) -> None:
         """Keep the haptic reading for the frame of the same goal."""
         try:
-            reading: HapticReading | None = conv.msg_to_haptic(msg)
+            reading: HapticReading | None = common.msg_to_haptic(msg)
         except MessageError as exc:
             self.get_logger().error(f"haptic reading dropped: {exc}")
             reading = None  # the pair of this goal need not wait for it any longer
@@ -128,10 +128,10 @@ class PerceptionNode(Node):
     def _process(self, parts: dict[str, Any]) -> None:
         geometry: StereoGeometry = parts["geometry"]
         try:
-            camera = conv.camera_from_info(parts["info"])
-            left_pose, right_pose = conv.poses_from_geometry(geometry)
-            left = conv.image_to_array(parts["left"])
-            right = conv.image_to_array(parts["right"])
+            camera = common.camera_from_info(parts["info"])
+            left_pose, right_pose = common.poses_from_geometry(geometry)
+            left = common.image_to_array(parts["left"])
+            right = common.image_to_array(parts["right"])
             if left.shape != right.shape or left.shape != (camera.height, camera.width):
                 raise MessageError(f"stereo pair sizes {left.shape} / {right.shape} do not "
                                    f"match the camera ({camera.height}, {camera.width})")
@@ -139,13 +139,13 @@ class PerceptionNode(Node):
             self.get_logger().error(f"stereo pair of goal {geometry.goal_id} dropped: {exc}; "
                                     "the attention node will ask for it again")
             return
-        stamp = time_to_seconds(geometry.header.stamp)
+        stamp = common.time_to_seconds(geometry.header.stamp)
         frame = StereoFrame(stamp=stamp, goal_id=int(geometry.goal_id), left=left, right=right,
                             camera=camera, left_pose=left_pose, right_pose=right_pose,
                             exposures=int(geometry.exposures),
                             haptic=self._haptic.pop(int(geometry.goal_id), None))
         rois = self.perception.process(frame, self._mapped)
-        self.pub_rois.publish(conv.rois_to_msg(rois, stamp, frame.goal_id))
+        self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id))
 
 
 def main(args: list[str] | None = None) -> None:

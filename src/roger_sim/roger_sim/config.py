@@ -134,3 +134,22 @@ class SimConfig:
     def focal_px(self) -> float:
         """Focal length in pixels of the square pinhole retina."""
         return (self.image_size / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+
+@dataclass(frozen=True)
+class SimNodeConfig:
+    """What the simulator node needs besides SimConfig.
+
+    Attributes:
+        world: World file (YAML, docs/world-files.md).
+        seed: Seed of pixel and sensor noise; same seed and world -> same images.
+    """
+
+    world: str = "worlds/table1.yaml"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _check("world", self.world, isinstance(self.world, str) and bool(self.world),
+               "a world file name")
+        _check("seed", self.seed, isinstance(self.seed, int) and not isinstance(self.seed, bool)
+               and self.seed >= 0, "an integer >= 0")

@@ -17,13 +17,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
+from roger_common import conversions as common
 from roger_common.atomic import atomic_write_bytes, sync_file
-from roger_common.conversions import (
+from roger_common.errors import RogerError
+from roger_common.ros_node import (
     IMAGES,
     LATCHED,
     RELIABLE,
@@ -31,7 +32,6 @@ from roger_common.conversions import (
     guard_parameters,
     spin_node,
 )
-from roger_common.errors import RogerError
 from roger_common.types import Action, StereoFrame
 from roger_interfaces.msg import (
     ActionGoal,
@@ -45,7 +45,7 @@ from roger_interfaces.msg import (
 )
 from roger_interfaces.srv import EditWorld
 from roger_sim import conversions as conv
-from roger_sim.config import SimConfig
+from roger_sim.config import SimConfig, SimNodeConfig
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
 
@@ -60,22 +60,18 @@ class SimNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_sim", **kwargs)
-        self.declare_parameter("world", "worlds/table1.yaml", ParameterDescriptor(
-            description="World file (YAML, docs/world-files.md)"))
-        self.declare_parameter("seed", 0, ParameterDescriptor(
-            description="Seed of pixel and sensor noise; same seed and world -> same images"))
+        self.node_config = declare_config(self, SimNodeConfig)
+        guard_parameters(self, SimNodeConfig, "", lambda: self.node_config)
         self.config = declare_config(self, SimConfig)
         guard_parameters(self, SimConfig, "", lambda: self.config)
-        world_path = str(self.get_parameter("world").value)
+        world_path = self.node_config.world
         self.world = load_world(world_path)
         state_dir = os.environ.get(STATE_DIR_ENV, "")
         self.state_path = Path(state_dir) / "sim.json" if state_dir else None
         saved = self._load_state()
         world = saved[0] if saved is not None else self.world
-        self.sim = Simulator(world, self.config, seed=int(self.get_parameter("seed").value))
-        if saved is not None:
-            # Go on from the saved simulated time (Simulator has no public setter for it).
-            self.sim._steps = saved[1]
+        self.sim = Simulator(world, self.config, seed=self.node_config.seed,
+                             start_steps=saved[1] if saved is not None else 0)
         self._last_goal_id = -1
         self._last_frame: StereoFrame | None = None
         self._map_revision = 0
@@ -119,7 +115,7 @@ class SimNode(Node):
             self._publish_frame(self._last_frame)
             return
         try:
-            goal = conv.msg_to_goal(msg)
+            goal = common.msg_to_goal(msg)
             report, frame = self.sim.run_goal(goal)
         except (RogerError, ValueError) as exc:
             self.get_logger().error(f"goal {msg.goal_id} refused: {exc}")
@@ -133,7 +129,7 @@ class SimNode(Node):
         # What perception waits for goes first (the haptic reading, then the frame): the
         # rest is for observers and would only delay the control cycle.
         if goal.action == Action.HAPTIC_IMPROVEMENT and frame.haptic is not None:
-            self._last_haptic_msg = conv.haptic_msg(frame.haptic, goal.goal_id, stamp)
+            self._last_haptic_msg = common.haptic_msg(frame.haptic, goal.goal_id, stamp)
             self.pub_haptic.publish(self._last_haptic_msg)
         self._publish_frame(frame)
         self._publish_clock()
@@ -153,13 +149,13 @@ class SimNode(Node):
 
     def _publish_frame(self, frame: StereoFrame) -> None:
         stamp = frame.stamp
-        self.pub_left_info.publish(conv.camera_info_msg(frame.camera, stamp, conv.LEFT_FRAME,
+        self.pub_left_info.publish(common.camera_info_msg(frame.camera, stamp, common.LEFT_FRAME,
                                                         BASELINE, right=False))
-        self.pub_right_info.publish(conv.camera_info_msg(frame.camera, stamp, conv.RIGHT_FRAME,
+        self.pub_right_info.publish(common.camera_info_msg(frame.camera, stamp, common.RIGHT_FRAME,
                                                          BASELINE, right=True))
-        self.pub_geometry.publish(conv.stereo_geometry_msg(frame, self._map_revision))
-        self.pub_left.publish(conv.image_msg(frame.left, stamp, conv.LEFT_FRAME))
-        self.pub_right.publish(conv.image_msg(frame.right, stamp, conv.RIGHT_FRAME))
+        self.pub_geometry.publish(common.stereo_geometry_msg(frame, self._map_revision))
+        self.pub_left.publish(common.image_msg(frame.left, stamp, common.LEFT_FRAME))
+        self.pub_right.publish(common.image_msg(frame.right, stamp, common.RIGHT_FRAME))
         # After the frame: the monitor keeps labels by stamp and holds a frame's
         # PolicyState until they arrive (monitor_logic.RunMonitor.flush).
         labels = conv.ground_truth_labels_msg(frame)
@@ -168,7 +164,7 @@ class SimNode(Node):
 
     def _publish_clock(self) -> None:
         msg = Clock()
-        msg.clock = conv.seconds_to_time(self.sim.sim_time)
+        msg.clock = common.seconds_to_time(self.sim.sim_time)
         self.pub_clock.publish(msg)
 
     def _publish_ground_truth(self) -> None:

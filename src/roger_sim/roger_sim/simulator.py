@@ -58,10 +58,16 @@ class Simulator:
         world: Objects and light; an empty world is allowed here (objects can be added).
         config: Simulator parameters.
         seed: Seed of the pixel and weight noise.
+        start_steps: Physics steps already taken (the simulated clock starts at
+            ``start_steps * time_step``): a restarted simulator goes on from the
+            simulated time it had, so that stamps never run backwards.
     """
 
     def __init__(self, world: WorldSpec, config: SimConfig | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, start_steps: int = 0) -> None:
+        if isinstance(start_steps, bool) or not isinstance(start_steps, int) or start_steps < 0:
+            raise ValueError(f"Simulator.start_steps must be an integer >= 0, "
+                             f"got {start_steps!r}")
         self.config = config or SimConfig()
         cfg = self.config
         self.client = pb.connect(pb.GUI if cfg.gui else pb.DIRECT)
@@ -118,7 +124,7 @@ class Simulator:
             self._spawn(spec)
         self._retina = Retina(c, cfg, world.light_direction)
         self._applied = np.zeros(len(self._names))
-        self._steps = 0
+        self._steps = start_steps
         self._last_haptic: HapticReading | None = None
         self._last_goal_haptic = False
 
