@@ -133,6 +133,27 @@ class CycleRecord:
     address: int
     counters: RunCounters
 
+    def to_dict(self) -> dict[str, Any]:
+        """The record as JSON-ready data (:meth:`from_dict` reads it back)."""
+        d = dataclasses.asdict(self)
+        d["action"] = int(self.action)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CycleRecord:
+        """A record written by :meth:`to_dict`; ValueError/KeyError/TypeError if corrupt."""
+        position, bbox = d["position"], d["bbox"]
+        return cls(
+            cycle=int(d["cycle"]), state_before=str(d["state_before"]),
+            action=Action(int(d["action"])), state_after=str(d["state_after"]),
+            reward=float(d["reward"]),
+            td_error=None if d["td_error"] is None else float(d["td_error"]),
+            entry_id=int(d["entry_id"]),
+            position=None if position is None else tuple(float(v) for v in position),
+            bbox=None if bbox is None else tuple(int(v) for v in bbox),
+            outcome=str(d["outcome"]), address=int(d["address"]),
+            counters=RunCounters(**d["counters"]))
+
 
 @dataclass
 class _Pending:

@@ -1,21 +1,18 @@
-"""Messages <-> roger_attention core types."""
+"""Messages <-> roger_attention core types: cycle reports, counters, the spatial map."""
 
 from __future__ import annotations
 
 import math
-
-from std_msgs.msg import Header
+from collections.abc import Iterable
 
 from roger_attention.controller import CycleRecord
-from roger_attention.spatial_map import SpatialMap
-from roger_common.conversions import point, seconds_to_time
+from roger_attention.session import PublishMap, PublishMetrics, Report
+from roger_attention.spatial_map import MapEntry
+from roger_common.conversions import header, point, seconds_to_time
 from roger_common.types import RunCounters
-from roger_interfaces.msg import MapEntry, Metrics, PolicyState
+from roger_interfaces.msg import MapEntry as MapEntryMsg
+from roger_interfaces.msg import Metrics, PolicyState
 from roger_interfaces.msg import SpatialMap as SpatialMapMsg
-
-
-def _header(stamp: float) -> Header:
-    return Header(stamp=seconds_to_time(stamp), frame_id="roger_base")
 
 
 def record_to_msg(record: CycleRecord, policy: str, stamp: float,
@@ -23,7 +20,7 @@ def record_to_msg(record: CycleRecord, policy: str, stamp: float,
     """One completed cycle as a PolicyState message."""
     x0, y0, x1, y1 = record.bbox if record.bbox is not None else (0, 0, 0, 0)
     return PolicyState(
-        header=_header(stamp), cycle=record.cycle, policy=policy,
+        header=header(stamp), cycle=record.cycle, policy=policy,
         state_before=record.state_before, state_after=record.state_after,
         action=int(record.action), reward=float(record.reward),
         td_error=float("nan") if record.td_error is None else float(record.td_error),
@@ -33,11 +30,16 @@ def record_to_msg(record: CycleRecord, policy: str, stamp: float,
         address=int(record.address), frame_stamp=seconds_to_time(frame_stamp))
 
 
+def report_to_msg(report: Report, policy: str) -> PolicyState:
+    """A session's Report as a PolicyState message."""
+    return record_to_msg(report.record, policy, report.stamp, report.frame_stamp)
+
+
 def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_size: int,
                 done: bool, stamp: float) -> Metrics:
     """The run counters as a Metrics message."""
     c = counters
-    return Metrics(header=_header(stamp), policy=policy, cycles=c.cycles,
+    return Metrics(header=header(stamp), policy=policy, cycles=c.cycles,
                    attention_shifts=c.attention_shifts, improvements=c.improvements,
                    visual_improvements=c.visual_improvements,
                    haptic_improvements=c.haptic_improvements,
@@ -46,10 +48,22 @@ def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_siz
                    map_entries=map_entries, memory_size=memory_size, done=done)
 
 
-def spatial_map_msg(spatial_map: SpatialMap, stamp: float, revision: int = 0) -> SpatialMapMsg:
-    """The spatial map as a message (``revision``: rises with every map published)."""
-    return SpatialMapMsg(header=_header(stamp), revision=int(revision), entries=[
-        MapEntry(id=e.entry_id, position=point(e.position), mapped=e.mapped,
-                 address=e.address, interest=float(e.interest),
-                 activation=float(e.activation) if math.isfinite(e.activation) else 0.0)
-        for e in spatial_map])
+def publish_metrics_to_msg(out: PublishMetrics, policy: str) -> Metrics:
+    """A session's PublishMetrics as a Metrics message."""
+    return metrics_msg(out.counters, policy, out.map_entries, out.memory_size, out.done,
+                       out.stamp)
+
+
+def spatial_map_msg(entries: Iterable[MapEntry], stamp: float,
+                    revision: int = 0) -> SpatialMapMsg:
+    """Entries of the spatial map as a message (``revision``: rises with every map sent)."""
+    return SpatialMapMsg(header=header(stamp), revision=int(revision), entries=[
+        MapEntryMsg(id=e.entry_id, position=point(e.position), mapped=e.mapped,
+                    address=e.address, interest=float(e.interest),
+                    activation=float(e.activation) if math.isfinite(e.activation) else 0.0)
+        for e in entries])
+
+
+def publish_map_to_msg(out: PublishMap) -> SpatialMapMsg:
+    """A session's PublishMap as a SpatialMap message."""
+    return spatial_map_msg(out.entries, out.stamp, out.revision)

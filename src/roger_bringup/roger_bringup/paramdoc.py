@@ -14,19 +14,13 @@ Regenerate the docs: ``python -m roger_bringup.paramdoc``.
 from __future__ import annotations
 
 import json
-from dataclasses import MISSING, dataclass, fields, is_dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from roger_attention.config import (
-    AttentionConfig,
-    AttentionNodeConfig,
-    QLearningConfig,
-    RewardConfig,
-    SpatialMapConfig,
-)
+from roger_attention.config import AttentionConfig, AttentionNodeConfig
 from roger_bringup.view_node import ViewNodeConfig
-from roger_common.configdoc import field_description
+from roger_common.configdoc import config_fields, field_description
 from roger_memory.config import MemoryConfig, MemoryNodeConfig
 from roger_perception.config import PerceptionConfig
 from roger_sim.config import SimConfig, SimNodeConfig
@@ -34,20 +28,17 @@ from roger_sim.config import SimConfig, SimNodeConfig
 REPO = Path(__file__).resolve().parents[3]
 #: Parameters rclpy gives every node (documented in the text above the table).
 BUILTIN: frozenset[str] = frozenset({"use_sim_time", "start_type_description_service"})
-#: (node name, parameter prefix, config dataclass) of every node's parameters, in the order
-#: the table lists them.
-NODE_CONFIGS: tuple[tuple[str, str, type], ...] = (
-    ("roger_sim", "", SimNodeConfig),
-    ("roger_sim", "", SimConfig),
-    ("roger_perception", "", PerceptionConfig),
-    ("roger_memory", "", MemoryNodeConfig),
-    ("roger_memory", "", MemoryConfig),
-    ("roger_attention", "", AttentionNodeConfig),
-    ("roger_attention", "", AttentionConfig),
-    ("roger_attention", "rewards.", RewardConfig),
-    ("roger_attention", "qlearning.", QLearningConfig),
-    ("roger_attention", "spatial_map.", SpatialMapConfig),
-    ("roger_view", "", ViewNodeConfig),
+#: (node name, config dataclass) of every node's parameters, in the order the table lists
+#: them (nested configs such as AttentionConfig.qlearning are groups of dotted names).
+NODE_CONFIGS: tuple[tuple[str, type], ...] = (
+    ("roger_sim", SimNodeConfig),
+    ("roger_sim", SimConfig),
+    ("roger_perception", PerceptionConfig),
+    ("roger_memory", MemoryNodeConfig),
+    ("roger_memory", MemoryConfig),
+    ("roger_attention", AttentionNodeConfig),
+    ("roger_attention", AttentionConfig),
+    ("roger_view", ViewNodeConfig),
 )
 #: Node names in table order, with what runs them.
 NODE_ORDER: tuple[tuple[str, str], ...] = (
@@ -67,35 +58,20 @@ class ParamRow:
     source: str
 
 
-def _default(f: Any) -> Any:
-    if f.default is not MISSING:
-        return f.default
-    if f.default_factory is not MISSING:
-        return f.default_factory()
-    return None
-
-
-def config_rows(node: str, prefix: str, cls: type) -> list[ParamRow]:
-    """The parameters ``declare_config`` makes of a config dataclass (nested ones skipped)."""
-    rows = []
-    for f in fields(cls):
-        default = _default(f)
-        if default is None or is_dataclass(default):
-            continue
-        if isinstance(default, tuple):
-            default = list(default)
-        rows.append(ParamRow(node, prefix + f.name, default, field_description(cls, f.name),
-                             cls.__name__))
-    return rows
+def config_rows(node: str, cls: type) -> list[ParamRow]:
+    """The parameters ``declare_config`` makes of a config dataclass, groups included."""
+    return [ParamRow(node, name, list(f.default) if isinstance(f.default, tuple) else f.default,
+                     field_description(f.owner, f.path[-1]), f.owner.__name__)
+            for name, f in config_fields(cls).items()]
 
 
 def parameter_table() -> list[ParamRow]:
     """Every parameter of the five nodes, node by node."""
     rows: list[ParamRow] = []
     for node, _ in NODE_ORDER:
-        for n, prefix, cls in NODE_CONFIGS:
+        for n, cls in NODE_CONFIGS:
             if n == node:
-                rows += config_rows(node, prefix, cls)
+                rows += config_rows(node, cls)
     return rows
 
 

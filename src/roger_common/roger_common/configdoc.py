@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import inspect
 import re
-from dataclasses import fields
+from dataclasses import MISSING, fields, is_dataclass
 from functools import cache
+from typing import Any, NamedTuple
 
 
 @cache
@@ -67,3 +68,38 @@ def live_fields(cls: type) -> frozenset[str]:
     """Fields of ``cls`` that may change while a node runs (metadata ``live=True``)."""
     return frozenset(f.name for f in fields(cls)  # type: ignore[arg-type]
                      if (f.metadata or {}).get("live"))
+
+
+def field_default(f: Any) -> Any:
+    """A dataclass field's default (its factory called), or None without one."""
+    if f.default is not MISSING:
+        return f.default
+    if f.default_factory is not MISSING:
+        return f.default_factory()
+    return None
+
+
+class ConfigField(NamedTuple):
+    """One parameter of a config dataclass (see :func:`config_fields`)."""
+
+    path: tuple[str, ...]
+    owner: type
+    default: Any
+
+
+def config_fields(config_cls: type, prefix: str = "") -> dict[str, ConfigField]:
+    """Every parameter a config dataclass makes, by name.
+
+    A field whose default is itself a config dataclass is a group: its fields become
+    parameters named ``prefix + field + "." + name`` (``qlearning.alpha``). Fields whose
+    default is None are not parameters.
+    """
+    out: dict[str, ConfigField] = {}
+    for f in fields(config_cls):  # type: ignore[arg-type]
+        default = field_default(f)
+        if is_dataclass(default):
+            for name, sub in config_fields(type(default), f"{prefix}{f.name}.").items():
+                out[name] = sub._replace(path=(f.name, *sub.path))
+        elif default is not None:
+            out[prefix + f.name] = ConfigField((f.name,), config_cls, default)
+    return out

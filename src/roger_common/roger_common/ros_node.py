@@ -6,14 +6,15 @@ Message conversions are in ``conversions``; neither module is imported by core c
 
 from __future__ import annotations
 
-from dataclasses import MISSING, fields, is_dataclass, replace
+from collections.abc import Callable
+from dataclasses import fields, replace
 from typing import Any, TypeVar
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from roger_common.configdoc import field_description, live_fields
+from roger_common.configdoc import config_fields, field_default, field_description, live_fields
 
 #: Commands and state: reliable, depth 10 (house style).
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -30,86 +31,97 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 C = TypeVar("C")
 
 
-def declare_config(node: Node, config_cls: type[C], prefix: str = "",
-                   overrides: dict[str, Any] | None = None, **nested: Any) -> C:
-    """Declare one ROS parameter per field of a frozen config dataclass and build it.
+def _build(config_cls: type[C], values: dict[tuple[str, ...], Any]) -> C:
+    """The dataclass with the leaf values by path (groups built recursively)."""
+    kwargs: dict[str, Any] = {}
+    groups: dict[str, dict[tuple[str, ...], Any]] = {}
+    for path, value in values.items():
+        if len(path) == 1:
+            kwargs[path[0]] = value
+        else:
+            groups.setdefault(path[0], {})[path[1:]] = value
+    for f in fields(config_cls):  # type: ignore[arg-type]
+        if f.name in groups:
+            kwargs[f.name] = _build(type(field_default(f)), groups[f.name])
+    return config_cls(**kwargs)
 
-    Values flow one way: ROS parameters -> config -> core. Tuple fields become arrays.
-    Each parameter's description is its field's (``configdoc.field_description``). The
-    dataclass's own validation (``__post_init__``) rejects bad values; the caller lets
-    that error reach ``main``.
+
+def _replace(config: Any, path: tuple[str, ...], value: Any) -> Any:
+    """A copy of ``config`` with the field at ``path`` set (validated at every level)."""
+    if len(path) > 1:
+        value = _replace(getattr(config, path[0]), path[1:], value)
+    return replace(config, **{path[0]: value})
+
+
+def _get(config: Any, path: tuple[str, ...]) -> Any:
+    for step in path:
+        config = getattr(config, step)
+    return config
+
+
+def declare_config(node: Node, config_cls: type[C], prefix: str = "",
+                   overrides: dict[str, Any] | None = None,
+                   apply: Callable[[C], None] | None = None) -> C:
+    """Declare one ROS parameter per field of a frozen config dataclass, build it, and
+    check every later change of those parameters against it.
+
+    Values flow one way: ROS parameters -> config -> core. Tuple fields become arrays;
+    nested config dataclasses become groups of dotted names (``config_fields``). Each
+    parameter's description is its field's (``configdoc.field_description``). The
+    dataclass's own validation (``__post_init__``) rejects bad values: at start the error
+    reaches ``main``; at ``ros2 param set`` time the change is refused with its reason.
+    A valid change of a field that may change while running (``configdoc.live_fields``)
+    goes to ``apply(new_config)``; any other change is refused as "read at start only"
+    (setting a parameter to the value it has is accepted and changes nothing).
 
     Args:
         node: The node that owns the parameters.
         config_cls: A dataclass whose fields all have defaults.
         prefix: Prepended to each parameter name, e.g. ``"memory."``.
-        overrides: Defaults to use instead of the dataclass's (still overridable by the user).
-        **nested: Values of fields that hold a nested config dataclass (declared by the
-            caller with their own prefix); such fields are not declared here.
+        overrides: Defaults to use instead of the dataclass's, by parameter name (still
+            overridable by the user).
+        apply: Takes the new config after a live change; None: nothing changes live.
     """
-    values: dict[str, Any] = dict(nested)
-    for f in fields(config_cls):  # type: ignore[arg-type]
-        if f.name in nested:
-            continue
-        if f.default is not MISSING:
-            default = f.default
-        elif f.default_factory is not MISSING:  # type: ignore[misc]
-            default = f.default_factory()  # type: ignore[misc]
-        else:
-            continue
-        if overrides and f.name in overrides:
-            default = overrides[f.name]
+    params = config_fields(config_cls, prefix)
+    values: dict[tuple[str, ...], Any] = {}
+    for name, (path, owner, default) in params.items():
+        if overrides and name in overrides:
+            default = overrides[name]
         if isinstance(default, tuple):
             default = list(default)
-        if default is None or is_dataclass(default):
-            continue
-        node.declare_parameter(prefix + f.name, default, ParameterDescriptor(
-            description=field_description(config_cls, f.name)))
-        value = node.get_parameter(prefix + f.name).value
-        if isinstance(default, list):
-            value = tuple(value)
-        values[f.name] = value
-    return config_cls(**values)  # type: ignore[call-arg]
+        node.declare_parameter(name, default, ParameterDescriptor(
+            description=field_description(owner, path[-1])))
+        value = node.get_parameter(name).value
+        values[path] = tuple(value) if isinstance(default, list) else value
+    current = [_build(config_cls, values)]
 
-
-def guard_parameters(node: Node, config_cls: type[C], prefix: str, get_config: Any,
-                     apply: Any = None) -> None:
-    """Validate parameter changes at set time against the config dataclass.
-
-    A value the dataclass rejects is refused with its reason. A valid value of a field
-    that may change while running (``configdoc.live_fields``) is applied through
-    ``apply(new_config)``; any other change is refused as "read at start only".
-
-    Args:
-        node: The node that owns the parameters.
-        config_cls: The dataclass the parameters were declared from.
-        prefix: The parameter name prefix used in ``declare_config``.
-        get_config: Callable returning the config in force.
-        apply: Callable taking the new config, or None.
-    """
-    names = {prefix + f.name: f.name for f in fields(config_cls)}  # type: ignore[arg-type]
-    live = live_fields(config_cls) if apply is not None else frozenset()
-
-    def _check(params: list[Any]) -> SetParametersResult:
-        changes = {names[p.name]: (tuple(p.value) if isinstance(p.value, list) else p.value)
-                   for p in params if p.name in names}
-        if not changes:
+    def check(changed: list[Any]) -> SetParametersResult:
+        mine = [p for p in changed if p.name in params]
+        if not mine:
             return SetParametersResult(successful=True)
+        new = current[0]
         try:
-            new = replace(get_config(), **changes)
+            for p in mine:
+                value = tuple(p.value) if isinstance(p.value, list) else p.value
+                new = _replace(new, params[p.name].path, value)
         except (ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        fixed = [n for n in changes if n not in live]
+        fixed = [p.name for p in mine if _get(new, params[p.name].path) !=
+                 _get(current[0], params[p.name].path) and (
+                     apply is None
+                     or params[p.name].path[-1] not in live_fields(params[p.name].owner))]
         if fixed:
             return SetParametersResult(
                 successful=False,
-                reason=f"{', '.join(prefix + n for n in fixed)}: read at start only; "
-                       "restart the node to change it")
-        assert apply is not None
-        apply(new)
+                reason=f"{', '.join(fixed)}: read at start only; restart the node to change it")
+        if new != current[0]:
+            assert apply is not None
+            current[0] = new
+            apply(new)
         return SetParametersResult(successful=True)
 
-    node.add_on_set_parameters_callback(_check)
+    node.add_on_set_parameters_callback(check)
+    return current[0]
 
 
 def spin_node(factory: Any, prog: str, args: list[str] | None = None,

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from roger_common import conversions as conv
 from roger_common.atomic import sync_file
 from roger_common.errors import MessageError
-from roger_common.ros_node import LATCHED, RELIABLE, declare_config, guard_parameters, spin_node
+from roger_common.ros_node import LATCHED, RELIABLE, declare_config, spin_node
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp
 from roger_interfaces.msg import MemoryRequest, MemoryResult
 from roger_memory.config import MemoryConfig, MemoryNodeConfig
@@ -38,9 +38,7 @@ class MemoryNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_memory", **kwargs)
         self.node_config = declare_config(self, MemoryNodeConfig)
-        guard_parameters(self, MemoryNodeConfig, "", lambda: self.node_config)
         self.config = declare_config(self, MemoryConfig)
-        guard_parameters(self, MemoryConfig, "", lambda: self.config)
         path = self.node_config.memory_file
         self.path = Path(path) if path else None
         seed = self.node_config.seed

@@ -19,7 +19,6 @@ from roger_common.ros_node import (
     LATCHED,
     RELIABLE,
     declare_config,
-    guard_parameters,
     spin_node,
 )
 from roger_common.types import HapticReading, StereoFrame
@@ -50,7 +49,6 @@ class PerceptionNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_perception", **kwargs)
         self.config = declare_config(self, PerceptionConfig)
-        guard_parameters(self, PerceptionConfig, "", lambda: self.config)
         self.perception = Perception(self.config)
         self._pending: dict[tuple[int, int], dict[str, Any]] = {}
         self._haptic: dict[int, HapticReading | None] = {}

@@ -29,7 +29,6 @@ from roger_common.ros_node import (
     LATCHED,
     RELIABLE,
     declare_config,
-    guard_parameters,
     spin_node,
 )
 from roger_common.types import Action, StereoFrame
@@ -61,9 +60,7 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_sim", **kwargs)
         self.node_config = declare_config(self, SimNodeConfig)
-        guard_parameters(self, SimNodeConfig, "", lambda: self.node_config)
         self.config = declare_config(self, SimConfig)
-        guard_parameters(self, SimConfig, "", lambda: self.config)
         world_path = self.node_config.world
         self.world = load_world(world_path)
         state_dir = os.environ.get(STATE_DIR_ENV, "")

@@ -1,0 +1,201 @@
+"""The attention node's protocol without ROS: AttentionSession driven by a fake transport.
+
+The transport delivers each outgoing goal and request to a scripted world and memory
+(attention_fakes) and hands the answers back as the node would. The session must run the
+same cycles as the controller driven synchronously, re-send what is not answered, ignore
+answers to anything else, stop at max_cycles, and resume after a crash with no cycle, id
+or mapped place lost.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from attention_fakes import FakeMemory, FakeWorld, check_table2, three_objects
+
+from roger_attention.config import AttentionConfig, AttentionNodeConfig, SpatialMapConfig
+from roger_attention.controller import AttentionController, CycleRecord, is_look
+from roger_attention.policies import make_policy
+from roger_attention.session import (
+    AttentionSession,
+    PublishMap,
+    PublishMetrics,
+    Report,
+    SendGoal,
+    SendRequest,
+)
+from roger_common.errors import RogerError
+from roger_common.types import Action
+
+
+class Clock:
+    """A wall clock the test moves by hand."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def make_session(tmp_path=None, policy: str = "qlearning", max_cycles: int = 0,
+                 clock: Clock | None = None, **node: object) -> AttentionSession:
+    cfg = AttentionConfig(policy=policy, spatial_map=SpatialMapConfig(vanish_frames=2),
+                          home_targets=(0.5, 0.3, 0.0, 0.5, -0.3, 0.0))
+    rng = np.random.default_rng(0)
+    ctl = AttentionController(cfg, make_policy(policy, cfg, rng), rng)
+    state = tmp_path / "attention.json" if tmp_path is not None else None
+    return AttentionSession(ctl, AttentionNodeConfig(max_cycles=max_cycles, **node), state,
+                            clock=clock or Clock())
+
+
+class Transport:
+    """Delivers a session's goals and requests and feeds the answers back."""
+
+    def __init__(self, session: AttentionSession, world: FakeWorld, memory: FakeMemory) -> None:
+        self.session, self.world, self.memory = session, world, memory
+        self.sim_time = 0.0
+        self.reports: list[Report] = []
+        self.maps: list[PublishMap] = []
+        self.metrics: list[PublishMetrics] = []
+        self.goals: list[SendGoal] = []
+        self.pending: list[SendGoal | SendRequest] = []
+
+    def take(self, out: list) -> None:
+        for item in out:
+            if isinstance(item, Report):
+                self.reports.append(item)
+            elif isinstance(item, PublishMap):
+                self.maps.append(item)
+            elif isinstance(item, PublishMetrics):
+                self.metrics.append(item)
+            else:
+                if isinstance(item, SendGoal):
+                    self.goals.append(item)
+                self.pending.append(item)
+
+    def answer(self) -> bool:
+        """Answer the oldest pending goal or request; False when none is pending."""
+        if not self.pending:
+            return False
+        item = self.pending.pop(0)
+        if isinstance(item, SendGoal):
+            self.sim_time += 0.5
+            goal = item.goal
+            touch = goal.target if goal.action is Action.HAPTIC_IMPROVEMENT else None
+            self.take(self.session.on_rois(goal.goal_id, self.world.rois(touch),
+                                           self.sim_time, None, None))
+        else:
+            result = self.memory.handle(item.request)
+            self.take(self.session.on_result(item.request.request_id, result,
+                                             len(self.memory.stored)))
+        return True
+
+    def run(self, max_steps: int = 10_000) -> None:
+        self.take(self.session.start())
+        for _ in range(max_steps):
+            if not self.answer():
+                return
+
+
+def test_session_runs_the_controllers_cycles_and_stops_at_max_cycles() -> None:
+    session = make_session(max_cycles=30)
+    t = Transport(session, FakeWorld(three_objects()), FakeMemory())
+    t.run()
+    assert session.done and [r.record.cycle for r in t.reports] == list(range(1, 31))
+    assert t.metrics[-1].done and t.metrics[-1].counters.cycles == 30
+    assert sum(m.done for m in t.metrics) == 1
+    check_table2(t.reports[-1].record.counters)
+    # The initial scan: one look per home target, each with an id of its own.
+    looks = [g.goal.goal_id for g in t.goals if is_look(g.goal.goal_id)]
+    assert len(looks) == 2 and len(set(looks)) == 2
+    # Each goal is perceived with the map of the revision published just before it.
+    revisions = [m.revision for m in t.maps]
+    assert revisions == sorted(revisions) and len(set(revisions)) == len(revisions)
+    # A map update's report carries no frame; a physical action's carries its pair's stamp.
+    for r in t.reports:
+        assert (r.frame_stamp == 0.0) == (r.record.action is Action.MAP_UPDATE)
+
+
+def test_unanswered_goals_are_resent_and_stale_answers_ignored() -> None:
+    clock = Clock()
+    session = make_session(clock=clock, retry_after_s=3.0)
+    t = Transport(session, FakeWorld(three_objects()), FakeMemory())
+    t.take(session.start())
+    first = t.pending[0]
+    assert session.tick() == [] and session.resends == 0
+    clock.now += 3.5
+    assert session.tick() == [first] and session.resends == 1
+    assert session.tick() == []                  # the retry restarts the wait
+    # An answer to another goal changes nothing; the awaited one goes on.
+    assert session.on_rois(first.goal.goal_id + 7, [], 1.0, None, None) == []
+    assert session.on_result(99, None, 0) == []
+    t.answer()
+    assert t.pending and t.pending[-1] is not first
+
+
+def test_idle_plan_looks_again_after_a_delay_without_counting_a_cycle() -> None:
+    clock = Clock()
+    session = make_session(clock=clock)
+    t = Transport(session, FakeWorld({}), FakeMemory())
+    t.run()
+    assert session.ctl.counters.cycles == 0 and not t.pending and t.reports == []
+    assert session.tick() == []
+    clock.now += 0.6
+    out = session.tick()
+    assert len(out) == 1 and isinstance(out[0], SendGoal) and is_look(out[0].goal.goal_id)
+
+
+def test_a_restarted_session_goes_on_where_the_crashed_one_stopped(tmp_path) -> None:
+    world, memory = FakeWorld(three_objects()), FakeMemory()
+    first = make_session(tmp_path, policy="straightforward", max_cycles=12)
+    t1 = Transport(first, world, memory)
+    t1.run()
+    assert first.done and first.ctl.spatial_map.all_mapped() and len(memory.stored) == 3
+    # "Crash": a new controller and session from the same file, with a larger budget.
+    second = make_session(tmp_path, policy="straightforward", max_cycles=20)
+    assert second.resumed and second.ctl.counters.cycles == 12
+    t2 = Transport(second, world, memory)
+    t2.sim_time = t1.sim_time
+    t2.run()
+    # After its scan the restarted session re-sends the last report, then goes on.
+    assert [r.record.cycle for r in t2.reports] == [12, *range(13, 21)]
+    assert t2.reports[0].record == t1.reports[-1].record
+    # The places mapped before the crash were mapped again after the scan: the known
+    # objects are not stored a second time, and no cycle id repeats.
+    # Mapped objects are identified again but need no map update.
+    assert len(memory.stored) == 3
+    assert all(r.record.action is not Action.MAP_UPDATE for r in t2.reports[1:])
+    assert second.ctl.spatial_map.all_mapped()
+    cycle_goals = [g.goal.goal_id for g in t1.goals + t2.goals if not is_look(g.goal.goal_id)]
+    assert len(cycle_goals) == len(set(cycle_goals))
+
+
+def test_a_restarted_session_keeps_what_the_q_learner_learnt(tmp_path) -> None:
+    first = make_session(tmp_path, max_cycles=25)
+    Transport(first, FakeWorld(three_objects()), FakeMemory()).run()
+    q = np.asarray(first.ctl.policy.state_dict()["q"])
+    assert np.any(q != 0.0)
+    second = make_session(tmp_path)
+    np.testing.assert_array_equal(second.ctl.policy.state_dict()["q"], q)
+    assert second.ctl.counters == first.ctl.counters
+
+
+def test_an_unusable_resume_file_is_refused_with_its_name(tmp_path) -> None:
+    (tmp_path / "attention.json").write_text('{"format": "something else"}')
+    with pytest.raises(RogerError, match="attention.json"):
+        make_session(tmp_path)
+    (tmp_path / "attention.json").write_text("not json")
+    with pytest.raises(RogerError, match="resume state unusable"):
+        make_session(tmp_path)
+
+
+def test_cycle_records_survive_their_json_round_trip() -> None:
+    session = make_session(max_cycles=12)
+    t = Transport(session, FakeWorld(three_objects()), FakeMemory())
+    t.run()
+    for r in t.reports:
+        again = CycleRecord.from_dict(json.loads(json.dumps(r.record.to_dict())))
+        assert again == r.record
