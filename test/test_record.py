@@ -168,11 +168,32 @@ def test_unfinished_recording_is_refused(tmp_path):
         message_counts(bad)
 
 
-def test_full_definition_appends_dependencies_once():
+def test_full_definition_is_rosbag2s(tmp_path, monkeypatch):
+    """rosbag2_cpp's own test case (test_local_message_definition_source.cpp,
+    can_find_msg_deps), then a Roger type: dependencies named as the fields spell them,
+    sorted, each once, depth first."""
+    share = tmp_path / "share" / "rosbag2_test_msgdefs" / "msg"
+    share.mkdir(parents=True)
+    (share / "ComplexMsg.msg").write_text("rosbag2_test_msgdefs/BasicMsg b\n")
+    (share / "BasicMsg.msg").write_text("float32 c\n")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path))
+    msgdefs.find_file.cache_clear()
+    msgdefs.full_definition.cache_clear()
+    try:
+        assert msgdefs.full_definition("rosbag2_test_msgdefs/ComplexMsg") == (
+            "rosbag2_test_msgdefs/BasicMsg b\n"
+            "\n"
+            "================================================================================\n"
+            "MSG: rosbag2_test_msgdefs/BasicMsg\n"
+            "float32 c\n")
+    finally:
+        msgdefs.find_file.cache_clear()
+        msgdefs.full_definition.cache_clear()
     text = msgdefs.full_definition("roger_interfaces/GroundTruthLabels")
-    assert text.count("MSG: std_msgs/msg/Header\n") == 1
-    assert text.count("MSG: sensor_msgs/msg/Image\n") == 1
-    assert text.count("MSG: builtin_interfaces/msg/Time\n") == 1
-    assert text.startswith("# Per pixel")
+    headers = [line for line in text.splitlines() if line.startswith("MSG: ")]
+    assert headers == ["MSG: sensor_msgs/Image", "MSG: std_msgs/Header",
+                       "MSG: builtin_interfaces/Time"]
+    assert text.startswith(msgdefs.find_file("roger_interfaces/GroundTruthLabels").read_text())
+    assert "\n\n" + "=" * 80 + "\nMSG: sensor_msgs/Image\n" in text
     with pytest.raises(msgdefs.MessageDefinitionError):
         msgdefs.full_definition("roger_interfaces/NoSuchType")
