@@ -124,7 +124,10 @@ def record_run(tmp, domain_id, bag=None):
         g.add(SimNode, params=dict(world=str(WORLDS / "table1.yaml"), seed=3))
         g.add(PerceptionNode)
         g.add(MemoryNode, params=dict(memory_file=str(tmp / "ltm.pt")))
-        g.add(AttentionNode, params=dict(policy="straightforward", max_cycles=CYCLES))
+        # As in roger run: the first cycle waits for both observers (the recorder's
+        # subscription to /roger/policy_state comes once it hears every publisher).
+        g.add(AttentionNode, params=dict(policy="straightforward", max_cycles=CYCLES,
+                                         wait_for_observers=2))
         assert spin_until(g.executor, lambda: any(m.done for m in listener.metrics), 120), \
             f"no completed run; counts {listener.counts}"
         assert spin_until(g.executor, lambda: recorder.counts == listener.counts, 10), \

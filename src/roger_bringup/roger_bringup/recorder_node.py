@@ -23,6 +23,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -34,6 +35,15 @@ from roger_common.errors import RogerError
 
 #: History depth of the recorder's subscriptions (a slow disk must not drop messages).
 RECORD_DEPTH = 100
+#: The attention node starts its first cycle once ``wait_for_observers`` subscriptions
+#: listen here (the orchestrator counts the recorder among them).
+GATE_TOPIC = "/roger/policy_state"
+#: Publishers (``Topic.publisher``) that every run has: their topics are heard before the
+#: gate opens.
+GRAPH_PUBLISHERS = frozenset({"sim", "perception", "memory", "attention"})
+#: Wall seconds after which the gate opens even if some publisher was never heard (a
+#: recorder started by hand next to part of a graph); it says which.
+GATE_TIMEOUT_S = 30.0
 
 
 def record_qos(topic: Topic) -> QoSProfile:
@@ -51,6 +61,12 @@ def default_bag_name() -> str:
 
 class McapRecorder(Node):
     """Subscribes raw to every topic and writes what arrives to the bag ``path``.
+
+    The subscription to GATE_TOPIC comes last, once every other subscription has matched
+    a publisher of the graph: the attention node waits for it before its first cycle, so
+    nothing the simulator or the other nodes publish is missed. (With only a subscription
+    to GATE_TOPIC to wait for, a 5-cycle run once finished before the simulator had
+    matched the recorder, and the bag held no image at all.)
 
     Attributes:
         writer: The bag writer; ``writer.counts`` are the messages recorded per topic.
@@ -85,13 +101,45 @@ class McapRecorder(Node):
         self.writer = BagWriter(target, compression=compression, custom_data=meta)
         if meta:
             self.writer.add_metadata(RUN_METADATA, {k: str(v) for k, v in meta.items()})
+        self._waiting: dict[str, Any] = {}
+        self._gate: Topic | None = None
         for topic in topics:
             self.writer.add_topic(topic.name, topic.type,
                                   [OfferedQos.from_profile(topic.qos_profile())])
-            self.create_subscription(topic.msg_class(), topic.name, self._writer_for(topic.name),
-                                     record_qos(topic), raw=True)
+            if topic.name == GATE_TOPIC:
+                self._gate = topic
+                continue
+            sub = self._subscribe(topic)
+            if topic.publisher in GRAPH_PUBLISHERS:
+                self._waiting[topic.name] = sub
         self._closed = False
+        self._gate_deadline = time.monotonic() + GATE_TIMEOUT_S
+        self._gate_timer = self.create_timer(
+            0.02, self._open_gate, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"recording {len(topics)} topics to {self.writer.bag}")
+
+    def _subscribe(self, topic: Topic) -> Any:
+        return self.create_subscription(topic.msg_class(), topic.name,
+                                        self._writer_for(topic.name), record_qos(topic),
+                                        raw=True)
+
+    def _open_gate(self) -> None:
+        unheard = [name for name, sub in self._waiting.items() if sub.get_publisher_count() == 0]
+        if unheard and time.monotonic() < self._gate_deadline:
+            return
+        if unheard:
+            self.get_logger().warning(f"no publisher after {GATE_TIMEOUT_S:.0f} s on "
+                                      f"{', '.join(unheard)}; recording anyway")
+        self._gate_timer.cancel()
+        self.destroy_timer(self._gate_timer)
+        if self._gate is not None:
+            self._subscribe(self._gate)
+            self._gate = None
+
+    @property
+    def gate_open(self) -> bool:
+        """Whether every subscription exists (GATE_TOPIC's comes last)."""
+        return self._gate is None
 
     @property
     def counts(self) -> dict[str, int]:
