@@ -1,14 +1,16 @@
 """A recorded bag opens everywhere (issue 18, items 1 and 5).
 
-One short run of the four nodes is recorded (test_record.record_run), then read by readers
-that share no code with Roger, and EVERY message must decode:
+One short ``roger run --record`` (the four node processes, the recorder in the
+orchestrator) is read by readers that share no code with Roger, and EVERY message must
+decode:
 
 - rosbags, given the bag folder (metadata.yaml) and given the .mcap file alone; it also
   checks each type's RIHS01 hash against the definitions in the file;
 - mcap-ros2-support, the decoder of the mcap project;
 - Foxglove's own JavaScript readers (@mcap/core, @foxglove/rosmsg in ROS 2 mode,
   @foxglove/rosmsg2-serialization, @foxglove/wasm-zstd), run with node on
-  test/js/decode_bag.mjs; a message that leaves trailing bytes counts as a mismatch.
+  test/js/decode_bag.mjs; a message that leaves bytes beyond CDR's alignment padding
+  counts as a mismatch.
 
 Each reader's decoded messages are compared field by field with rclpy's (fingerprints:
 every scalar, every short array, length and 8 sampled elements of long ones), so a reader
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import array
 import dataclasses
+import io
 import json
 import math
 import random
@@ -32,15 +35,18 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, WORLDS
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
-from test_record import killed_recording, record_run
+from test_record import killed_recording
 
 from roger_bringup.record import message_counts, read_messages
+from roger_bringup.run import RunOptions, run_graph
+from roger_bringup.topics import TOPICS
 
 JS = REPO / "test" / "js"
+CYCLES = 5
 #: As in decode_bag.mjs: arrays longer than this are fingerprinted by length and samples.
 FULL_ARRAY = 64
 SAMPLES = 8
@@ -86,9 +92,16 @@ def fingerprint(value):
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """(bag folder, messages per topic, rclpy's fingerprints per topic)."""
+    """A bag of ``roger run --record`` (the node processes and the orchestrator's recorder):
+    (bag folder, messages per topic, rclpy's fingerprints per topic)."""
     tmp = tmp_path_factory.mktemp("readers")
-    bag, counts, _, _ = record_run(tmp, random.SystemRandom().randint(1, 101))
+    bag = tmp / "bag"
+    run_graph(RunOptions(world=WORLDS / "table1.yaml", out=tmp / "out", cycles=CYCLES,
+                         progress=False, domain_id=random.SystemRandom().randint(1, 101),
+                         timeout_s=240, record=bag), log=io.StringIO())
+    counts = message_counts(bag)
+    assert counts["/roger/policy_state"] == CYCLES
+    assert not [t.name for t in TOPICS if t.per_cycle and counts[t.name] == 0]
     reference = defaultdict(list)
     for topic, msg, _ in read_messages(bag):
         reference[topic].append(fingerprint(msg))
