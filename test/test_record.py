@@ -165,6 +165,8 @@ def check_layout(bag, counts):
     """metadata.yaml says what ``ros2 bag record -s mcap`` would: version 9, the file, the
     counts and times of the MCAP summary, the run in custom_data."""
     assert sorted(p.name for p in bag.iterdir()) == ["bag_0.mcap", "metadata.yaml"]
+    # Readable by whoever may read the recording (the atomic write's temporary is 0600).
+    assert (bag / "metadata.yaml").stat().st_mode == (bag / "bag_0.mcap").stat().st_mode
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert list(info) == ["version", "storage_identifier", "duration", "starting_time",
                           "message_count", "topics_with_message_count", "compression_format",

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import re
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -239,6 +240,7 @@ class BagWriter:
         # message that is not there.
         self._on_disk: tuple[dict[str, int], int | None, int] = ({}, None, 0)
         self._closed = False
+        self._mode = os.stat(self.path).st_mode & 0o777
         # rosbag2 writes the metadata when a bag opens and when it closes.
         self.add_metadata("rosbag2", {"serialized_metadata": self._serialized_metadata()})
         self._write_metadata_file()
@@ -359,6 +361,9 @@ class BagWriter:
         text = "\n".join(yaml_lines({"rosbag2_bagfile_information": self.metadata()}))
         try:
             atomic_write_bytes(self.bag / METADATA_FILE, text.encode() + b"\n", durable=durable)
+            # The temporary file it renames is private (0600); a bag is shared like its
+            # .mcap, which open() created with the usual mode.
+            os.chmod(self.bag / METADATA_FILE, self._mode)
         except OSError as exc:
             raise RecordingError(f"{self.bag / METADATA_FILE}: cannot write ({exc})") from exc
 
