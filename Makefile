@@ -53,10 +53,18 @@ $(STAMPS)/packages: $(STAMPS)/interfaces $(SETUP_FILES)
 	  $(foreach p,$(PACKAGES),-e src/$(p)) 2>&1 | $(PIPQUIET)
 	@touch $@
 
+# Foxglove's JavaScript bag readers at the versions of test/js/package-lock.json, for
+# test/test_bag_readers.py (only `make test` needs Node.js and npm).
+$(STAMPS)/npm: test/js/package.json test/js/package-lock.json
+	@command -v npm >/dev/null || { echo "bootstrap: npm (Node.js 20) is needed by make test for Foxglove's bag readers"; exit 1; }
+	@echo "installing Foxglove's bag readers into test/js/node_modules (npm ci)"
+	@npm ci --prefix test/js --no-audit --no-fund --loglevel=error
+	@mkdir -p $(STAMPS) && touch $@
+
 demo: bootstrap
 	$(VENV)/bin/roger demo
 
-test: bootstrap
+test: bootstrap $(STAMPS)/npm
 	@$(PY) -m pytest -q test
 
 lint: bootstrap

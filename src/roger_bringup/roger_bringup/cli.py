@@ -43,8 +43,10 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--view", type=Path, default=None,
                    help="write the attention view (PNG frames and view.gif) to this folder")
-    p.add_argument("--record", type=Path, default=None,
-                   help="record every topic to this MCAP file (rosbag2 layout)")
+    p.add_argument("--record", type=Path, default=None, metavar="BAG",
+                   help="record every topic to a rosbag2 bag: a new folder BAG holding "
+                        "metadata.yaml and BAG_0.mcap (as ros2 bag record -s mcap -o BAG), "
+                        "or, for a name ending in .mcap, that one MCAP file")
 
 
 def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -173,7 +175,8 @@ def main(argv: list[str] | None = None) -> None:
     p_bench.add_argument("--quick", action="store_true", help="a few cycles only (smoke test)")
     p_bench.set_defaults(func=cmd_bench)
     p_replay = sub.add_parser("replay", help="regenerate metrics and figures from a recording")
-    p_replay.add_argument("file", type=Path, help="MCAP file written by roger run --record")
+    p_replay.add_argument("file", type=Path, metavar="BAG",
+                          help="bag folder or .mcap file written by roger run --record")
     p_replay.add_argument("--out", type=Path, default=Path("runs/replay"), help="output folder")
     p_replay.set_defaults(func=cmd_replay)
     p_train = sub.add_parser("train", help="train the Q-learning policy over worlds and seeds")

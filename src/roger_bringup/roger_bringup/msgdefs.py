@@ -1,9 +1,15 @@
-"""Complete message definitions in rosbag2's ``ros2msg`` form, for MCAP schemas.
+"""Complete message definitions for MCAP schemas, byte for byte as rosbag2 (Jazzy) writes them.
 
-rosbag2 stores, for each type, the type's own .msg text followed by the text of every type
-it depends on (recursively), each dependency preceded by a line of 80 '=' and a line
-``MSG: pkg/msg/Type`` (rosbag2 docs/message_definition_encoding.md). Foxglove, ``ros2 bag``
-and mcap-ros2-support decode messages from this text alone.
+rosbag2 stores, for each type, the type's own .msg file followed by the file of every type it
+depends on (recursively, each once), each dependency after a blank line, a line of 80 '=' and
+a line ``MSG: <name>`` (rosbag2 docs/message_definition_encoding.md). The name is the one the
+field spells, ``std_msgs/Header``, or ``<package>/<Type>`` for a field type without a
+package; never ``std_msgs/msg/Header``: readers resolve field types by that name, and
+Foxglove's parser finds no ``std_msgs/Header`` in a ``MSG: std_msgs/msg/Header`` section.
+This module follows rosbag2_cpp's ``LocalMessageDefinitionSource::get_full_text``: the
+same dependency pattern and primitive set, dependencies in sorted order, depth first, the
+files' text unchanged. Foxglove, ``ros2 bag`` and mcap-ros2-support decode messages from
+this text alone.
 
 The .msg files are looked up under ``<prefix>/share/<pkg>/msg/`` for each prefix of
 AMENT_PREFIX_PATH and the running interpreter's prefix (the repo's .venv), then in the
@@ -14,16 +20,22 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 from functools import cache
 from pathlib import Path
 
 from roger_common.errors import RogerError
 
-#: Built-in field types of the .msg language.
+#: Field types that are not dependencies: rosbag2_cpp's PRIMITIVE_TYPES. ``wstring`` is not
+#: among them there either (a wstring field would send rosbag2 looking for ``pkg/wstring``).
 PRIMITIVES: frozenset[str] = frozenset({
     "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
-    "int32", "uint32", "int64", "uint64", "string", "wstring"})
+    "int32", "uint32", "int64", "uint64", "string"})
+#: rosbag2_cpp's MSG_FIELD_TYPE_REGEX: the first word of a line, before an optional array
+#: suffix and white space (comment lines, starting with '#', never match; nor do bounded
+#: strings such as ``string<=8``, which are primitive anyway).
+_FIELD_TYPE = re.compile(r"(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+")
 DELIMITER = "=" * 80
 
 
@@ -75,46 +87,44 @@ def find_file(type_name: str, suffix: str = ".msg") -> Path:
 
 
 def field_types(text: str, package: str) -> list[str]:
-    """Non-primitive field types of one .msg text, qualified, in order of appearance."""
-    out: list[str] = []
-    for raw in text.splitlines():
-        line = raw.split("#", 1)[0].strip()
-        if not line:
+    """The dependencies of one .msg text, spelled as rosbag2 spells them, in sorted order.
+
+    A field type with a package keeps its spelling (``std_msgs/Header`` stays so); one
+    without gets the package of the file it is in (``RegionOfInterest`` in sensor_msgs is
+    ``sensor_msgs/RegionOfInterest``).
+    """
+    deps: set[str] = set()
+    for match in _FIELD_TYPE.finditer(text):
+        name = match.group(1)
+        if name in PRIMITIVES:
             continue
-        # Constants ("uint8 X=0") are always primitive, so the type alone decides.
-        base = line.split()[0].split("[", 1)[0].split("<=", 1)[0]
-        if base in PRIMITIVES:
-            continue
-        qualified = normalize(base if "/" in base else f"{package}/{base}")
-        if qualified not in out:
-            out.append(qualified)
-    return out
+        deps.add(name if "/" in name else f"{package}/{name}")
+    return sorted(deps)
 
 
 @cache
 def full_definition(type_name: str) -> str:
-    """The type's .msg text with every dependency appended, rosbag2 ``ros2msg`` style.
+    """The type's .msg text with every dependency appended, as rosbag2 writes it.
+
+    Args:
+        type_name: ``pkg/msg/Type`` (the schema name; ``pkg/Type`` is accepted too).
 
     Raises:
         MessageDefinitionError: A .msg file is missing.
     """
-    root = normalize(type_name)
-    texts: dict[str, str] = {}
-    order: list[str] = []
+    seen: set[str] = set()
 
-    def visit(name: str) -> None:
-        text = find_file(name).read_text()
-        texts[name] = text
+    def text_with_dependencies(name: str) -> str:
+        # Bytes as they are (read_text would turn "\r\n" into "\n").
+        text = find_file(name).read_bytes().decode("utf-8")
+        out = text
         for dep in field_types(text, name.split("/")[0]):
-            if dep not in texts:
-                order.append(dep)
-                visit(dep)
+            if dep not in seen:
+                seen.add(dep)
+                out += f"\n{DELIMITER}\nMSG: {dep}\n" + text_with_dependencies(dep)
+        return out
 
-    visit(root)
-    parts = [texts[root].rstrip("\n")]
-    for dep in order:
-        parts.append(f"{DELIMITER}\nMSG: {dep}\n{texts[dep].rstrip(chr(10))}")
-    return "\n".join(parts) + "\n"
+    return text_with_dependencies(normalize(type_name))
 
 
 @cache

@@ -178,6 +178,9 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     memory = (opt.memory or out / "memory.pt").resolve()
     qtable = (opt.qtable or out / "qtable.json").resolve()
     check_files(memory, qtable)
+    if opt.record is not None:
+        from roger_bringup.record import check_target
+        check_target(opt.record)  # an existing bag is refused before anything starts
     domain_id = opt.domain_id if opt.domain_id is not None else pick_domain_id()
     env = ros_environment(out, domain_id)
     # Resume state belongs to one run: a new run into the same folder starts afresh.
