@@ -3,7 +3,7 @@
 Each row: topic, message type, QoS profile name, publisher node, subscriber nodes, what
 it carries. ``per_cycle`` marks topics that carry messages in every run of a few cycles.
 The QoS name is that of the profile the topic's publisher is created with
-(``roger_common.conversions``: RELIABLE, IMAGES, LATCHED); bags record it.
+(``roger_common.ros_node``: RELIABLE, IMAGES, LATCHED); bags record it.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-#: QoS names of the table -> names of the profiles in roger_common.conversions.
+#: QoS names of the table -> names of the profiles in roger_common.ros_node.
 QOS_PROFILES: dict[str, str] = {"reliable": "RELIABLE", "images": "IMAGES",
                                 "latched": "LATCHED"}
 
@@ -37,8 +37,7 @@ class Topic:
 
     def qos_profile(self) -> Any:
         """The rclpy QoSProfile the topic's publisher uses (imports rclpy)."""
-        conversions = importlib.import_module("roger_common.conversions")
-        return getattr(conversions, QOS_PROFILES[self.qos])
+        return getattr(importlib.import_module("roger_common.ros_node"), QOS_PROFILES[self.qos])
 
 
 TOPICS: tuple[Topic, ...] = (
