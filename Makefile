@@ -12,7 +12,8 @@ STAMPS := $(VENV)/.stamps
 ROOT := $(abspath .)
 # pip's extra-index configuration on these machines prints one warning per package.
 PIPQUIET := grep -v "is ignored: it is neither a file nor a directory" || true
-PACKAGES := roger_common roger_sim roger_perception roger_memory roger_attention roger_bringup
+PACKAGES := roger_common roger_sim roger_perception roger_memory roger_attention \
+  roger_experiments roger_bringup
 MSG_FILES := $(wildcard src/roger_interfaces/msg/*.msg src/roger_interfaces/srv/*.srv)
 SETUP_FILES := $(foreach p,$(PACKAGES),src/$(p)/setup.py)
 
@@ -21,7 +22,7 @@ SETUP_FILES := $(foreach p,$(PACKAGES),src/$(p)/setup.py)
 help:
 	@echo "make demo   run the main experiment (creates .venv on first use)"
 	@echo "make test   run the test suite"
-	@echo "make lint   ruff over src, test and bench"
+	@echo "make lint   ruff, the import contracts (.importlinter) and mypy"
 	@echo "make bench  run the benchmarks (see README)"
 
 bootstrap: $(STAMPS)/packages
@@ -69,6 +70,8 @@ test: bootstrap $(STAMPS)/npm
 
 lint: bootstrap
 	$(VENV)/bin/ruff check src test bench
+	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/mypy
 
 bench: bootstrap
 	$(VENV)/bin/roger bench --out runs/bench

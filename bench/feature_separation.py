@@ -16,8 +16,8 @@ import itertools
 
 import numpy as np
 
-from roger_bringup.evaluation import object_under_window
 from roger_common.types import Action, Goal
+from roger_experiments.evaluation import object_under_window
 from roger_perception.perception import Perception
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world

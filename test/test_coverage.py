@@ -14,7 +14,7 @@ import pytest
 from conftest import WORLDS
 
 from roger_attention.config import AttentionConfig
-from roger_bringup.core_loop import CoreLoop
+from roger_experiments.core_loop import CoreLoop
 from roger_sim.world import load_world, object_from_dict
 from roger_sim.worldgen import random_world
 

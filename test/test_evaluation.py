@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from roger_bringup.compare import RunResult, check_claims, sign_test_p, table2
-from roger_bringup.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
 from roger_common.types import Action, ObjectSpec
+from roger_experiments.compare import RunResult, check_claims, sign_test_p, table2
+from roger_experiments.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
 
 S, V, H, M = (int(a) for a in Action)
 

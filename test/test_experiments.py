@@ -8,7 +8,7 @@ import sys
 
 from conftest import WORLDS
 
-from roger_bringup.core_loop import run_core
+from roger_experiments.core_loop import run_core
 from roger_memory.memory import AssociativeMemory
 from roger_sim.world import load_world
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from conftest import WORLDS
 
-from roger_bringup.core_loop import run_core
 from roger_bringup.run import RunOptions, run_graph
+from roger_experiments.core_loop import run_core
 from roger_sim.world import load_world
 
 

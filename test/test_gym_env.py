@@ -12,9 +12,9 @@ from gymnasium.utils.env_checker import check_env
 from roger_attention.config import QLearningConfig
 from roger_attention.fsm import STATES, State
 from roger_attention.qlearning import QTable
-from roger_bringup.gym_env import ENV_ID, RogerAttentionEnv, allowed_from_mask, run_qlearning
 from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_DIM, Action
+from roger_experiments.gym_env import ENV_ID, RogerAttentionEnv, allowed_from_mask, run_qlearning
 from roger_memory.config import MemoryConfig
 
 #: A memory that learns a new object in a few replay steps keeps each step fast.

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import LABELS_WAIT_S, RunMonitor
 from roger_common.types import Action
+from roger_experiments.evaluation import RunRecorder
 
 
 class FakeClock:

@@ -87,8 +87,8 @@ def test_table_matches_the_live_nodes(no_leaks, context):
     for name, _ in NODE_ORDER:
         node = _build(name, context)
         try:
-            live = {p: node.get_parameter(p).value for p in node._parameters
-                    if p not in BUILTIN}
+            live = {p: node.get_parameter(p).value
+                    for p in node.list_parameters([], 0).names if p not in BUILTIN}
             documented = {r.name: r for r in rows if r.node == name}
             assert set(live) == set(documented), name
             for pname, row in documented.items():

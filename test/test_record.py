@@ -30,7 +30,6 @@ from ros_helpers import TopicListener, ros_graph, spin_until
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup import msgdefs
-from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import COUNTER_FIELDS, RunMonitor
 from roger_bringup.record import (
     BagWriter,
@@ -46,6 +45,7 @@ from roger_bringup.record import (
 from roger_bringup.recorder_node import McapRecorder
 from roger_bringup.run import RunOptions, run_graph
 from roger_bringup.topics import TOPICS
+from roger_experiments.evaluation import RunRecorder
 from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 from roger_memory.memory_node import MemoryNode
 from roger_perception.perception_node import PerceptionNode

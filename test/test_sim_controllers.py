@@ -156,8 +156,7 @@ def test_map_update_is_rejected(sim: Simulator) -> None:
 def test_gravity_compensation_holds_the_arms(sim: Simulator) -> None:
     names, q0, _, _ = sim.joint_state()
     sim.execute(Goal(1, Action.ATTENTION_SHIFT, (0.8, 0.1, 0.1)))
-    for _ in range(240):  # one more simulated second of holding still
-        sim._step(None)
+    sim.hold(240)  # one more simulated second of holding still
     names, q1, _, effort = sim.joint_state()
     lift = names.index("left_arm_lift")
     assert abs(q1[lift] - q0[lift]) < 1e-3

@@ -11,7 +11,10 @@ from ros_helpers import ros_graph, spin_until
 from sensor_msgs.msg import Image
 
 from roger_attention.attention_node import AttentionNode
-from roger_bringup.view import (
+from roger_bringup.view_node import ViewNode
+from roger_common.errors import ConfigError
+from roger_common.types import FEATURE_DIM, Roi
+from roger_experiments.view import (
     FOCUS_COLOR,
     MARGIN,
     ROI_COLOR,
@@ -20,9 +23,6 @@ from roger_bringup.view import (
     focus_roi_id,
     interests_by_roi,
 )
-from roger_bringup.view_node import ViewNode
-from roger_common.errors import ConfigError
-from roger_common.types import FEATURE_DIM, Roi
 from roger_interfaces.msg import Metrics
 from roger_memory.memory_node import MemoryNode
 from roger_perception.perception_node import PerceptionNode

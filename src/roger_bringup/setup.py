@@ -12,7 +12,7 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    description="orchestrator, roger command line, experiments and in-process core loop",
+    description="launcher: orchestrator, roger command line, monitor, recorder and view nodes",
     license="Apache-2.0",
     entry_points={
         "console_scripts": ["roger = roger_bringup.cli:main"],

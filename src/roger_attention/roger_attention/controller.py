@@ -45,7 +45,7 @@ from roger_attention.fsm import (
 )
 from roger_attention.policies import Policy
 from roger_attention.spatial_map import MapChanges, MapEntry, Position, SpatialMap, VisibleFn
-from roger_common.geometry import in_view
+from roger_common.geometry import as_point, in_view
 from roger_common.types import (
     Action,
     CameraModel,
@@ -68,6 +68,11 @@ OUTCOMES: tuple[str, ...] = (
 LOOK_ID_BASE = 1 << 62
 #: Format tag of ``export_state``.
 STATE_FORMAT = "roger_attention_controller/1"
+
+
+def _bbox(b: Sequence[int]) -> tuple[int, int, int, int]:
+    x0, y0, x1, y1 = (int(v) for v in b)
+    return (x0, y0, x1, y1)
 
 
 def is_look(goal_id: int) -> bool:
@@ -149,8 +154,8 @@ class CycleRecord:
             reward=float(d["reward"]),
             td_error=None if d["td_error"] is None else float(d["td_error"]),
             entry_id=int(d["entry_id"]),
-            position=None if position is None else tuple(float(v) for v in position),
-            bbox=None if bbox is None else tuple(int(v) for v in bbox),
+            position=None if position is None else as_point(position),
+            bbox=None if bbox is None else _bbox(bbox),
             outcome=str(d["outcome"]), address=int(d["address"]),
             counters=RunCounters(**d["counters"]))
 
@@ -495,5 +500,5 @@ class AttentionController:
             state_before=before.bits, action=plan.action, state_after=after.bits, reward=r,
             td_error=td, entry_id=plan.entry_id,
             position=entry.position if entry is not None else None,
-            bbox=tuple(entry.roi.bbox) if entry is not None else None,
+            bbox=_bbox(entry.roi.bbox) if entry is not None else None,
             outcome=outcome, address=address, counters=dataclasses.replace(self.counters))

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from roger_attention.config import SpatialMapConfig
+from roger_common.geometry import as_point
 from roger_common.types import Roi
 
 Position = tuple[float, float, float]
@@ -172,7 +173,7 @@ class SpatialMap:
         entry_id = self._next_id
         self._next_id += 1
         self.entries[entry_id] = MapEntry(
-            entry_id=entry_id, position=tuple(float(x) for x in roi.position),
+            entry_id=entry_id, position=as_point(roi.position),
             roi=dataclasses.replace(roi, mapped=False),
             features=np.asarray(roi.features, np.float32).copy(),
             known=np.asarray(roi.known, bool).copy(),
@@ -181,7 +182,7 @@ class SpatialMap:
         return entry_id
 
     def _associate(self, entry: MapEntry, roi: Roi, now: float) -> bool:
-        entry.position = tuple(float(x) for x in roi.position)
+        entry.position = as_point(roi.position)
         entry.activation = float(roi.activation)
         entry.last_seen = now
         entry.last_frame = self.frame

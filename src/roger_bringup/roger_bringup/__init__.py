@@ -1,1 +1,2 @@
-"""Orchestrator, roger command line, experiments and in-process core loop."""
+"""The launcher: orchestrator, the roger command line, and the monitor, recorder and view
+nodes."""

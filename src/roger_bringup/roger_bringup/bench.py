@@ -42,9 +42,9 @@ from typing import Any, Self
 import numpy as np
 import yaml
 
-from roger_bringup.core_loop import CoreLoop
-from roger_bringup.evaluation import ACTION_NAMES
 from roger_common.types import FEATURE_DIM, WorldSpec
+from roger_experiments.core_loop import CoreLoop
+from roger_experiments.evaluation import ACTION_NAMES
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 from roger_perception.perception import STAGES

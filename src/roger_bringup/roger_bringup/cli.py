@@ -86,11 +86,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6."""
-    from roger_bringup.compare import compare
+    from roger_experiments.compare import compare
 
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
     if args.in_process:
-        from roger_bringup.core_loop import run_core
+        from roger_experiments.core_loop import run_core
         from roger_sim.world import load_world
         world = load_world(args.world)
 
@@ -121,7 +121,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     """``roger train``: Q-learning over worlds and seeds; writes the Q-table and TD curve."""
     import time
 
-    from roger_bringup.train import train
+    from roger_experiments.train import train
 
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
     if args.graph:
@@ -132,7 +132,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                                         cycles=args.cycles, seed=seed, qtable=qtable,
                                         progress=not args.quiet))
     else:
-        from roger_bringup.core_loop import run_core
+        from roger_experiments.core_loop import run_core
         from roger_sim.world import load_world
 
         def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_common.types import Action, ObjectSpec
+from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 
 #: Label images kept, by stamp, for the policy states that refer to them.
 LABELS_KEPT = 32

@@ -13,9 +13,9 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from roger_bringup.evaluation import RunRecorder
 from roger_bringup.monitor_logic import RunMonitor
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE
+from roger_experiments.evaluation import RunRecorder
 from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
 
 #: The node names a complete graph has.

@@ -47,9 +47,9 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from roger_bringup import msgdefs
-from roger_bringup.evaluation import RunRecorder
 from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.errors import RogerError
+from roger_experiments.evaluation import RunRecorder
 
 #: Metadata record with the run's policy, world and seed (read back by replay).
 RUN_METADATA = "roger_run"
@@ -572,9 +572,9 @@ def replay(bag: Path, out_dir: Path) -> dict[str, Any]:
     Raises:
         RecordingError: The bag is unreadable or holds no policy state.
     """
-    from roger_bringup import plots
-    from roger_bringup.compare import RunResult, read_cycles
     from roger_bringup.monitor_logic import RunMonitor
+    from roger_experiments import plots
+    from roger_experiments.compare import RunResult, read_cycles
 
     t0 = time.monotonic()
     counts = message_counts(bag)

@@ -119,9 +119,11 @@ class McapRecorder(Node):
         self.get_logger().info(f"recording {len(topics)} topics to {self.writer.bag}")
 
     def _subscribe(self, topic: Topic) -> Any:
+        # rclpy passes the message info as a second argument to a callback that takes one
+        # (its annotation says one argument only).
         return self.create_subscription(topic.msg_class(), topic.name,
-                                        self._writer_for(topic.name), record_qos(topic),
-                                        raw=True)
+                                        self._writer_for(topic.name),  # type: ignore[arg-type]
+                                        record_qos(topic), raw=True)
 
     def _open_gate(self) -> None:
         unheard = [name for name, sub in self._waiting.items() if sub.get_publisher_count() == 0]

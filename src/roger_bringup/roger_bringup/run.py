@@ -17,7 +17,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from roger_attention.qlearning import QTable
-from roger_bringup.evaluation import CycleRow, RunRecorder
 from roger_bringup.monitor_node import MonitorNode
 from roger_bringup.orchestrator import (
     STATE_DIR_ENV,
@@ -31,6 +30,7 @@ from roger_bringup.orchestrator import (
 )
 from roger_common.dds import PROFILE_ENV
 from roger_common.errors import RogerError
+from roger_experiments.evaluation import CycleRow, RunRecorder
 from roger_memory.persistence import load_snapshot
 from roger_sim.world import load_world
 

@@ -29,7 +29,7 @@ class Topic:
     meaning: str
     per_cycle: bool = True
 
-    def msg_class(self) -> type:
+    def msg_class(self) -> Any:
         """The message class (imports the message package)."""
         pkg, _, cls = self.type.partition("/msg/") if "/msg/" in self.type else \
             self.type.partition("/")

@@ -24,13 +24,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from roger_bringup.conversions import map_interests, view_to_msg
-from roger_bringup.evaluation import ACTION_NAMES
 from roger_bringup.monitor_logic import COUNTER_FIELDS
-from roger_bringup.view import ViewWriter, compose_view, interests_by_roi
 from roger_common.conversions import image_to_array, msg_to_rois
 from roger_common.errors import ConfigError, MessageError
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, declare_config, spin_node
 from roger_common.types import Action, Roi
+from roger_experiments.evaluation import ACTION_NAMES
+from roger_experiments.view import ViewWriter, compose_view, interests_by_roi
 from roger_interfaces.msg import Metrics, PolicyState, RoiArray, SpatialMap
 
 #: Stereo pairs kept by stamp until a policy state refers to them.
@@ -140,7 +140,7 @@ class ViewNode(Node):
             self._pending = None
 
     def _frame_of(self, msg: PolicyState) -> dict[str, Any] | None:
-        key = (int(msg.frame_stamp.sec), int(msg.frame_stamp.nanosec))
+        key: tuple[int, int] | None = (int(msg.frame_stamp.sec), int(msg.frame_stamp.nanosec))
         if msg.action == Action.MAP_UPDATE or key not in self._frames:
             key = self._latest  # a map update looks at nothing new: the last pair
         frame = self._frames.get(key) if key is not None else None

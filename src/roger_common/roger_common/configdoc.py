@@ -54,9 +54,9 @@ def field_description(cls: type, name: str) -> str:
     Raises:
         KeyError: The field has no description (every config field must have one).
     """
-    for f in fields(cls):  # type: ignore[arg-type]
+    for f in fields(cls):
         if f.name == name:
-            doc = (f.metadata or {}).get("doc") or docstring_attributes(cls).get(name)
+            doc = dict(f.metadata).get("doc") or docstring_attributes(cls).get(name)
             if doc:
                 return str(doc)
             break
@@ -66,8 +66,8 @@ def field_description(cls: type, name: str) -> str:
 
 def live_fields(cls: type) -> frozenset[str]:
     """Fields of ``cls`` that may change while a node runs (metadata ``live=True``)."""
-    return frozenset(f.name for f in fields(cls)  # type: ignore[arg-type]
-                     if (f.metadata or {}).get("live"))
+    return frozenset(f.name for f in fields(cls)
+                     if dict(f.metadata).get("live"))
 
 
 def field_default(f: Any) -> Any:
@@ -95,7 +95,7 @@ def config_fields(config_cls: type, prefix: str = "") -> dict[str, ConfigField]:
     default is None are not parameters.
     """
     out: dict[str, ConfigField] = {}
-    for f in fields(config_cls):  # type: ignore[arg-type]
+    for f in fields(config_cls):
         default = field_default(f)
         if is_dataclass(default):
             for name, sub in config_fields(type(default), f"{prefix}{f.name}.").items():

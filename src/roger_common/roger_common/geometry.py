@@ -10,6 +10,12 @@ import numpy as np
 from roger_common.types import CameraModel, EyePose
 
 
+def as_point(p: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    """Three numbers as an (x, y, z) tuple of floats; ValueError unless exactly three."""
+    x, y, z = (float(v) for v in p)
+    return (x, y, z)
+
+
 def camera_ray(camera: CameraModel, pose: EyePose, u: float, v: float) -> np.ndarray:
     """Unit direction, robot frame, of the ray through pixel (u, v) (pixel centres at +0.5)."""
     cx, cy = camera.width / 2.0, camera.height / 2.0

@@ -126,7 +126,8 @@ class MemoryConfig:
         extra = sorted(set(data) - names)
         if extra:
             raise ConfigError(f"MemoryConfig: unknown field(s) {extra}")
-        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                                  for k, v in data.items()}
         return cls(**kwargs)
 
 

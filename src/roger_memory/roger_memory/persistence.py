@@ -72,7 +72,7 @@ def encode_snapshot(snapshot: MemorySnapshot) -> bytes:
         "addresses": np.asarray(snapshot.addresses, np.int64),
     }
     arrays.update({_WEIGHT_PREFIX + k: np.asarray(v) for k, v in snapshot.weights.items()})
-    np.savez(buf, **arrays)
+    np.savez(buf, **arrays)  # type: ignore[arg-type]
     payload = buf.getvalue()
     header = json.dumps({
         "format": "roger_memory",

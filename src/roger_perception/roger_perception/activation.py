@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from roger_common.geometry import in_view
+from roger_common.geometry import as_point, in_view
 from roger_common.types import CameraModel, EyePose
 from roger_perception.config import PerceptionConfig
 
@@ -57,7 +57,7 @@ def motion_term(position: Sequence[float], previous: Sequence[Sequence[float]],
     if previous_view is None:
         return 0.0
     camera, pose = previous_view
-    if not in_view(camera, pose, position):
+    if not in_view(camera, pose, as_point(position)):
         return 0.0
     if len(previous) == 0:
         return 1.0

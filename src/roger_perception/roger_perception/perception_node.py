@@ -6,6 +6,7 @@ Run alone: ``roger-perception`` (or ``python -m roger_perception.perception_node
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
@@ -57,14 +58,11 @@ class PerceptionNode(Node):
         #: Complete pairs waiting for their haptic reading or map: (parts, since).
         self._ready: list[tuple[dict[str, Any], float]] = []
         self.pub_rois = self.create_publisher(RoiArray, "/roger/rois", RELIABLE)
-        self.create_subscription(Image, "/roger/left/image_raw",
-                                 lambda m: self._part(m.header.stamp, "left", m), IMAGES)
-        self.create_subscription(Image, "/roger/right/image_raw",
-                                 lambda m: self._part(m.header.stamp, "right", m), IMAGES)
-        self.create_subscription(StereoGeometry, "/roger/stereo_geometry",
-                                 lambda m: self._part(m.header.stamp, "geometry", m), IMAGES)
-        self.create_subscription(CameraInfo, "/roger/left/camera_info",
-                                 lambda m: self._part(m.header.stamp, "info", m), IMAGES)
+        for kind, cls, topic in (("left", Image, "/roger/left/image_raw"),
+                                 ("right", Image, "/roger/right/image_raw"),
+                                 ("geometry", StereoGeometry, "/roger/stereo_geometry"),
+                                 ("info", CameraInfo, "/roger/left/camera_info")):
+            self.create_subscription(cls, topic, self._part_of(kind), IMAGES)
         self.create_subscription(HapticReadingMsg, "/roger/haptic", self.on_haptic, RELIABLE)
         self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
         self.create_timer(0.5, self._flush_stale,
@@ -87,6 +85,9 @@ class PerceptionNode(Node):
         self._mapped = conv.mapped_positions(msg)
         self._map_revision = max(self._map_revision, int(msg.revision))
         self._drain()
+
+    def _part_of(self, kind: str) -> Callable[[Any], None]:
+        return lambda msg: self._part(msg.header.stamp, kind, msg)
 
     def _part(self, stamp: Any, kind: str, msg: Any) -> None:
         key = (stamp.sec, stamp.nanosec)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from roger_common.geometry import as_point
 from roger_common.types import StereoFrame
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import adjacency, group_fragments, near_other_label
@@ -151,6 +152,6 @@ def _place(blob: Blob, depth: float, cost: float, sweep: PlaneSweep, width: int
         width_px = max(width_px, max(0.0, float(top[2])) * sweep.camera.focal_px / depth)
         cu = min(cu, u1 - width_px / 2.0) if cut_left else max(cu, u0 + width_px / 2.0)
     position = sweep.point(cu, cv, depth)
-    return SeenObject(blob=blob, depth=depth, position=tuple(float(x) for x in position),
+    return SeenObject(blob=blob, depth=depth, position=as_point(position),
                       centre_px=(cu, cv), right_px=sweep.right_pixel(cu, cv, depth),
                       width_px=width_px, cut=cut_left or cut_right, cost=cost)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from roger_common.geometry import camera_ray, project_point, triangulate
+from roger_common.geometry import as_point, camera_ray, project_point, triangulate
 from roger_common.types import CameraModel, EyePose
 from roger_perception.config import PerceptionConfig
 from roger_perception.segmentation import Blob
@@ -118,7 +118,7 @@ def match_blobs(left: Sequence[Blob], right: Sequence[Blob], camera: CameraModel
                 continue
             cost = (epi / cfg.epipolar_tol_px + ratio / log_ratio_max
                     + dint / cfg.max_intensity_diff)
-            candidates.append(StereoMatch(i, j, tuple(float(x) for x in point), gap, cost))
+            candidates.append(StereoMatch(i, j, as_point(point), gap, cost))
     candidates.sort(key=lambda m: (m.cost, m.left, m.right))
     used_l: set[int] = set()
     used_r: set[int] = set()

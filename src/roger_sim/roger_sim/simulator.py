@@ -272,6 +272,12 @@ class Simulator:
             return True
         return any(s.state == ControllerState.TRANSIENT for s in self._servos.values())
 
+    def hold(self, steps: int) -> None:
+        """Let ``steps`` physics steps pass with no goal: every servo holds its reference
+        (the simulated clock advances)."""
+        for _ in range(steps):
+            self._step(None)
+
     def execute(self, goal: Goal) -> ControllerReport:
         """Run one physical action until every controller converged or failed.
 

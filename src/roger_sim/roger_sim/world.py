@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from roger_common.errors import WorldFileError
+from roger_common.geometry import as_point
 from roger_common.types import ObjectSpec, WorldSpec
 from roger_sim.robot import CONTROLLERS, REACH, shoulder_xy
 
@@ -193,7 +194,7 @@ def parse_world(data: dict, source: str) -> WorldSpec:
         spec = object_from_dict(entry, source, f"objects[{i}]")
         check_overlap(objects, spec, source, f"objects[{i}] ({spec.name})")
         objects.append(spec)
-    return WorldSpec(objects=tuple(objects), name=name, light_direction=direction,
+    return WorldSpec(objects=tuple(objects), name=name, light_direction=as_point(direction),
                      source=source)
 
 
@@ -206,8 +207,10 @@ def load_world(path: str | Path) -> WorldSpec:
     source = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
         raise WorldFileError(source, "", f"cannot read the file: {exc.strerror or exc}")
+    except UnicodeDecodeError as exc:
+        raise WorldFileError(source, "", f"cannot read the file: {exc}")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -46,8 +46,8 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
     """
     rng = np.random.default_rng(seed)
     name = name or f"random_{n_categories}x{copies}_{seed}"
-    categories = []
-    used = set()
+    categories: list[tuple[str, float, int, float, str]] = []
+    used: set[tuple[str, str, int]] = set()
     while len(categories) < n_categories:
         cat = (str(rng.choice(SHAPES)), round(float(rng.uniform(*size_range)), 2),
                int(rng.integers(50, 131)), round(float(rng.uniform(0.2, 1.8)), 1),

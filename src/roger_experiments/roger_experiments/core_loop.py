@@ -20,8 +20,8 @@ import numpy as np
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
 from roger_attention.policies import Policy, make_policy
-from roger_bringup.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_common.types import Action, MatchResult, StereoFrame, WorldSpec
+from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 from roger_perception.config import PerceptionConfig

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -12,10 +12,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 if TYPE_CHECKING:
-    from roger_bringup.compare import RunResult
+    from roger_experiments.compare import RunResult
 
-STYLE = {"qlearning": dict(color="tab:blue", linestyle=":", label="Q-learning"),
-         "straightforward": dict(color="tab:orange", linestyle="-", label="straightforward")}
+STYLE: dict[str, dict[str, Any]] = {
+    "qlearning": dict(color="tab:blue", linestyle=":", label="Q-learning"),
+    "straightforward": dict(color="tab:orange", linestyle="-", label="straightforward")}
 
 
 def cumulative(rows: list[dict[str, str]], what: str) -> np.ndarray:

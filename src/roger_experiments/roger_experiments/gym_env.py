@@ -33,7 +33,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -42,11 +42,11 @@ from gymnasium import spaces
 from roger_attention.config import AttentionConfig
 from roger_attention.fsm import ACTIONS, STATES, State, is_terminal
 from roger_attention.qlearning import QTable
-from roger_bringup.core_loop import CoreLoop
-from roger_bringup.evaluation import ACTION_NAMES
-from roger_bringup.view import compose_view
 from roger_common.errors import ConfigError, RogerError
 from roger_common.types import FEATURE_DIM, Action, WorldSpec
+from roger_experiments.core_loop import CoreLoop
+from roger_experiments.evaluation import ACTION_NAMES
+from roger_experiments.view import compose_view
 from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
 from roger_sim.config import SimConfig
@@ -102,7 +102,7 @@ class ExternalPolicy:
 class RogerAttentionEnv(gymnasium.Env):
     """One control cycle of the real robot per step, the agent choosing the action."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, world: str | Path | WorldSpec = DEFAULT_WORLD, max_cycles: int = 204,
                  features: bool = False, render_mode: str | None = None,
@@ -137,7 +137,7 @@ class RogerAttentionEnv(gymnasium.Env):
         self.features = features
         self.render_mode = render_mode
         self.keep_memory = keep_memory
-        self.configs = {"sim_config": sim_config or SimConfig(),
+        self.configs: dict[str, Any] = {"sim_config": sim_config or SimConfig(),
                         "perception_config": perception_config or PerceptionConfig(),
                         "memory_config": memory_config or MemoryConfig()}
         # The agent's actions replace the policy's (``CoreLoop.agent``).
@@ -305,4 +305,4 @@ def run_qlearning(env: RogerAttentionEnv, table: QTable, episodes: int,
 
 
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="roger_bringup.gym_env:RogerAttentionEnv")
+    gymnasium.register(id=ENV_ID, entry_point="roger_experiments.gym_env:RogerAttentionEnv")

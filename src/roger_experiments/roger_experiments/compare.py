@@ -164,7 +164,7 @@ def report_markdown(table: dict[str, Any], claims: list[dict[str, Any]], world: 
 def write_outputs(out: Path, results: list[RunResult], world: str,
                   world_regions: str = "") -> dict[str, Any]:
     """Write table2.json, table2.md, report.md and the three figures."""
-    from roger_bringup import plots
+    from roger_experiments import plots
 
     out.mkdir(parents=True, exist_ok=True)
     table = table2(results)
