@@ -107,7 +107,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             return run_graph(RunOptions(world=args.world, out=run_dir, policy=policy,
                                         cycles=args.cycles, seed=seed,
                                         progress=not args.quiet))
-    result = compare(args.world, args.cycles, seeds, args.out, run_one)
+    result = compare(args.world, seeds, args.out, run_one)
     print()
     print((args.out / "table2.md").read_text())
     for c in result["claims"]:
@@ -142,7 +142,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                                    out=run_dir, qtable_path=qtable)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
-    summary = train(args.worlds, seeds, args.cycles, args.out, run_one)
+    summary = train(args.worlds, seeds, args.out, run_one)
     print(json.dumps(summary, indent=2))
     print(f"Q-table: {args.out / 'qtable.json'}; TD curve: {args.out / 'td_errors.png'}")
     return 0

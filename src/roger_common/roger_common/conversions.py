@@ -18,7 +18,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from roger_common.errors import MessageError
-from roger_common.geometry import eye_pose, quaternion_from_rotation, rotation_from_quaternion
+from roger_common.geometry import eye_pose, quaternion_from_rotation
 from roger_common.types import (
     FEATURE_DIM,
     Action,
@@ -70,9 +70,6 @@ def rotation_to_quaternion(r: np.ndarray) -> Quaternion:
     return Quaternion(x=x, y=y, z=z, w=w)
 
 
-def quaternion_to_rotation(q: Quaternion) -> np.ndarray:
-    """A unit quaternion as a 3x3 rotation matrix."""
-    return rotation_from_quaternion((q.x, q.y, q.z, q.w))
 
 
 def pose_msg(position: np.ndarray, rotation: np.ndarray) -> Pose:

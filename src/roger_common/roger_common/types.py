@@ -319,9 +319,6 @@ class WorldSpec:
     source: str = "<memory>"
 
 
-def empty_features() -> tuple[np.ndarray, np.ndarray]:
-    """A zero feature vector with every feature unknown."""
-    return np.zeros(FEATURE_DIM, np.float32), np.zeros(FEATURE_DIM, bool)
 
 
 @dataclass

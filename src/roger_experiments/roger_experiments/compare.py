@@ -180,7 +180,7 @@ def write_outputs(out: Path, results: list[RunResult], world: str,
     return {"table2": table, "claims": claims}
 
 
-def compare(world: Path, cycles: int, seeds: list[int], out: Path,
+def compare(world: Path, seeds: list[int], out: Path,
             run_one: Callable[[str, int, Path], dict[str, Any]],
             progress: Callable[[str], None] = print) -> dict[str, Any]:
     """Run both policies for every seed with ``run_one(policy, seed, run_dir)`` and write

@@ -20,7 +20,7 @@ from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
 
 
-def train(worlds: list[Path], seeds: list[int], cycles: int, out: Path,
+def train(worlds: list[Path], seeds: list[int], out: Path,
           run_one: Callable[[Path, int, Path, Path], dict[str, Any]],
           progress: Callable[[str], None] = print) -> dict[str, Any]:
     """Train one Q-table over every (world, seed) pair, in that order.
@@ -28,7 +28,6 @@ def train(worlds: list[Path], seeds: list[int], cycles: int, out: Path,
     Args:
         worlds: World files.
         seeds: Seeds; every world is run with every seed.
-        cycles: Control cycles per run.
         out: Output folder: qtable.json, td_errors.csv, td_errors.png, runs/.
         run_one: ``run_one(world, seed, qtable_path, run_dir) -> metrics``; learns from and
             saves to ``qtable_path``.

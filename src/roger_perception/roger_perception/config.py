@@ -6,7 +6,7 @@ Every field is documented in docs/perception.md, with the reason for its default
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from roger_common.errors import ConfigError
 
@@ -191,10 +191,6 @@ class PerceptionConfig:
         s1, s2, s3 = (kernel_size(s, self.kernel_radius_sigmas) for s in self.log_sigmas)
         return s1, s2, s3
 
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        """All field names (for generating ROS parameters)."""
-        return tuple(f.name for f in fields(cls))
 
 
 def kernel_size(sigma: float, radius_sigmas: float = 3.0) -> int:
