@@ -76,3 +76,26 @@ def no_leaks():
 def ros_domain() -> int:
     """A fresh domain id for a test that starts a graph."""
     return random.SystemRandom().randint(1, 101)
+
+
+@pytest.fixture
+def ros_context(ros_domain, monkeypatch):
+    """An rclpy Context of the test's own on its domain, in the repository folder (node
+    defaults such as the world file are relative to it)."""
+    from ros_helpers import ros_context as make_context
+
+    monkeypatch.chdir(REPO)
+    with make_context(ros_domain) as context:
+        yield context
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Torch on one thread for a test module (the memory nodes run so, docs/memory.md:
+    the matrices are tiny), restored afterwards."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

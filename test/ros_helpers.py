@@ -68,20 +68,31 @@ class RosGraph:
 
 
 @contextmanager
-def ros_graph(domain_id: int) -> Iterator[RosGraph]:
-    """A per-test Context and executor; every node added is destroyed on the way out."""
+def ros_context(domain_id: int) -> Iterator[Any]:
+    """An rclpy Context of its own on ``domain_id``, shut down on the way out (the one way
+    the tests make a ROS context: the ``ros_context`` fixture and ``ros_graph`` use it)."""
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
 
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
-    graph = RosGraph(context, SingleThreadedExecutor(context=context))
     try:
-        yield graph
+        yield context
     finally:
-        for node in graph.nodes:
-            graph.executor.remove_node(node)
-            node.destroy_node()
-        graph.executor.shutdown()
         rclpy.try_shutdown(context=context)
+
+
+@contextmanager
+def ros_graph(domain_id: int) -> Iterator[RosGraph]:
+    """A per-test Context and executor; every node added is destroyed on the way out."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    with ros_context(domain_id) as context:
+        graph = RosGraph(context, SingleThreadedExecutor(context=context))
+        try:
+            yield graph
+        finally:
+            for node in graph.nodes:
+                graph.executor.remove_node(node)
+                node.destroy_node()
+            graph.executor.shutdown()

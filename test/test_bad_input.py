@@ -14,9 +14,7 @@ import sys
 
 import numpy as np
 import pytest
-import rclpy
 from conftest import WORLDS
-from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from roger_common.errors import MessageError, WorldFileError
@@ -84,14 +82,8 @@ def test_sim_node_refuses_a_bad_world_with_one_line(no_leaks, tmp_path, ros_doma
 
 # -- messages a node cannot use ----------------------------------------------------------
 @pytest.fixture
-def ctx(ros_domain, monkeypatch):
-    monkeypatch.chdir(WORLDS.parent)
-    context = Context()
-    rclpy.init(context=context, domain_id=ros_domain)
-    try:
-        yield context
-    finally:
-        rclpy.try_shutdown(context=context)
+def ctx(ros_context):
+    return ros_context
 
 
 class Sink:

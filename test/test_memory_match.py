@@ -23,13 +23,7 @@ W_UNKNOWN[WEIGHT_INDEX] = False
 NOISE = 0.01
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    # The caller's business (see docs/memory.md): tiny matrices run faster on one thread.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _distinct_patterns(n: int, seed: int) -> np.ndarray:

@@ -17,14 +17,7 @@ from roger_memory.network import (
     winner_take_all,
 )
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    # The caller's business (see docs/memory.md): tiny matrices run faster on one thread.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _net(seed: int = 0, addresses: int = 0) -> AssociativeNetwork:

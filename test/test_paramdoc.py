@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import pytest
-import rclpy
 from conftest import REPO
-from rclpy.context import Context
 
 from roger_attention.attention_node import AttentionNode
 from roger_bringup.paramdoc import (
@@ -67,14 +65,8 @@ def _value(v):
 
 
 @pytest.fixture
-def context(ros_domain, monkeypatch):
-    monkeypatch.chdir(REPO)  # the sim's default world file is relative to the repo
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain)
-    try:
-        yield ctx
-    finally:
-        rclpy.try_shutdown(context=ctx)
+def context(ros_context):
+    return ros_context  # in the repository folder: the sim's default world is relative
 
 
 def _build(name, ctx, cli_args=None):
