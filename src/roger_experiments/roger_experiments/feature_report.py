@@ -1,0 +1,307 @@
+"""``roger features``: do Roger's features repeat? (issue 15, a measurement, not a test)
+
+The robot looks at a world the way it does in a run, without the memory or a policy:
+
+1. the initial scan (``AttentionConfig.home_targets``): every ROI of every look;
+2. for every place the scan settled in the spatial map (the controller's own association),
+   an attention shift onto it, a visual improvement and a haptic improvement (the weight);
+3. a shift back onto each place after all of them were visited.
+
+Each ROI of each frame is one *look*. The simulator's label images say (for scoring only)
+which object a ROI shows and how pure it is; the robot never sees them. Per feature the
+report gives the within-object spread (the pooled standard deviation of the looks of one
+object around their mean), the spread between categories (the standard deviation of the
+category means) and their ratio; over all eleven features, the distance between two looks
+of one object against the distance between the two nearest categories (RMS over the
+features known in both, the memory's distance); and the ROI purity and merges.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roger_attention.config import AttentionConfig
+from roger_attention.spatial_map import SpatialMap
+from roger_common.atomic import atomic_write_bytes
+from roger_common.types import FEATURE_NAMES, Action, Goal, Roi, StereoFrame, WorldSpec
+from roger_perception.config import PerceptionConfig
+from roger_perception.perception import Perception
+from roger_sim.config import SimConfig
+from roger_sim.simulator import Simulator
+
+#: Stages of a look, in the order the robot takes them.
+STAGES: tuple[str, ...] = ("scan", "shift", "visual", "haptic", "back")
+#: Stages that look at the focus (what the memory is asked about).
+FOCUS_STAGES: tuple[str, ...] = ("shift", "visual", "haptic", "back")
+#: A ROI showing an object on less than this share of its pixels is impure (not a look at
+#: one object); two objects each on at least MERGE_SHARE of a ROI's pixels are merged.
+PURE_SHARE = 0.8
+MERGE_SHARE = 0.15
+#: The target of the issue: every feature that enters the memory's decision separates
+#: categories at least this many times better than one object's looks scatter.
+RATIO_TARGET = 2.0
+
+
+@dataclass(frozen=True)
+class Look:
+    """One ROI of one frame.
+
+    Attributes:
+        stage: One of STAGES.
+        gaze: Number of the frame (0 for the first look of the scan).
+        focus: For a focus stage, True when the ROI is the one nearest the fixation.
+        obj: The object most of its pixels show (ground truth; None for none).
+        purity: Share of its pixels on that object.
+        merged: Objects covering at least MERGE_SHARE of its pixels each (2+: a merge).
+        roi: The ROI as perception gave it.
+    """
+
+    stage: str
+    gaze: int
+    focus: bool
+    obj: str | None
+    purity: float
+    merged: tuple[str, ...]
+    roi: Roi
+
+
+@dataclass
+class LookLog:
+    """Every look of a world, and what it took."""
+
+    world: WorldSpec
+    looks: list[Look] = field(default_factory=list)
+    frames: int = 0
+
+
+def _label_shares(frame: StereoFrame, roi_labels: np.ndarray, roi_id: int
+                  ) -> list[tuple[str, float]]:
+    """(object, share of the ROI's pixels) for the objects under a ROI, largest first."""
+    if frame.left_labels is None:
+        return []
+    under = frame.left_labels[roi_labels == roi_id + 1]
+    if under.size == 0:
+        return []
+    counts = np.bincount(under[under >= 0], minlength=len(frame.label_names))
+    order = np.argsort(-counts)
+    return [(frame.label_names[i], counts[i] / under.size) for i in order if counts[i] > 0]
+
+
+def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None = None,
+                  perception_config: PerceptionConfig | None = None,
+                  attention_config: AttentionConfig | None = None) -> LookLog:
+    """Let the robot look at ``world`` (module docstring) and keep every look."""
+    att = attention_config or AttentionConfig()
+    sim = Simulator(world, sim_config or SimConfig(), seed=seed)
+    perception = Perception(perception_config or PerceptionConfig())
+    smap = SpatialMap(att.spatial_map)
+    log = LookLog(world)
+    goal_id = 0
+
+    def look(action: Action, target: tuple[float, float, float], stage: str) -> list[Roi]:
+        nonlocal goal_id
+        goal_id += 1
+        _, frame = sim.run_goal(Goal(goal_id, action, target))
+        rois = perception.process(frame, smap.mapped_positions())
+        smap.update(rois, frame.stamp)
+        near = min(rois, key=lambda r: math.dist(r.position[:2], target[:2]), default=None)
+        if near is not None and math.dist(near.position[:2], target[:2]) > \
+                att.spatial_map.association_radius:
+            near = None
+        for roi in rois:
+            shares = _label_shares(frame, perception.last_roi_labels, roi.roi_id)
+            obj, purity = shares[0] if shares else (None, 0.0)
+            merged = tuple(o for o, s in shares if s >= MERGE_SHARE)
+            log.looks.append(Look(stage, log.frames, roi is near and stage != "scan", obj,
+                                  float(purity), merged, roi))
+        log.frames += 1
+        return rois
+
+    try:
+        for target in att.scan_targets:
+            look(Action.ATTENTION_SHIFT, target, "scan")
+        places = [e.position for e in smap]
+        for place in places:
+            look(Action.ATTENTION_SHIFT, place, "shift")
+            look(Action.VISUAL_IMPROVEMENT, place, "visual")
+            look(Action.HAPTIC_IMPROVEMENT, place, "haptic")
+        for place in places:
+            look(Action.ATTENTION_SHIFT, place, "back")
+    finally:
+        sim.close()
+    return log
+
+
+def _rms(a: np.ndarray, b: np.ndarray, ka: np.ndarray, kb: np.ndarray) -> float:
+    k = ka & kb
+    return float(np.sqrt(np.mean((a[k] - b[k]) ** 2))) if k.any() else math.nan
+
+
+def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
+    """Within-object and between-category spread of every feature, look distances.
+
+    Only pure looks (PURE_SHARE) of an object count.
+    """
+    category = {o.name: o.category() for o in world.objects}
+    by_obj: dict[str, list[Look]] = defaultdict(list)
+    for lk in looks:
+        if lk.obj is not None and lk.purity >= PURE_SHARE:
+            by_obj[lk.obj].append(lk)
+    n = len(FEATURE_NAMES)
+    within_sq, within_n = np.zeros(n), np.zeros(n)
+    obj_mean: dict[str, np.ndarray] = {}
+    obj_known: dict[str, np.ndarray] = {}
+    for name, lks in by_obj.items():
+        x = np.stack([lk.roi.features for lk in lks]).astype(np.float64)
+        k = np.stack([lk.roi.known for lk in lks])
+        cnt = k.sum(axis=0)
+        mean = np.where(cnt > 0, (x * k).sum(axis=0) / np.maximum(cnt, 1), np.nan)
+        obj_mean[name], obj_known[name] = mean, cnt > 0
+        dev = np.where(k, x - mean, 0.0)
+        within_sq += (dev ** 2).sum(axis=0)
+        within_n += np.maximum(cnt - 1, 0)  # degrees of freedom per object
+    within = np.sqrt(within_sq / np.maximum(within_n, 1))
+    cats: dict[Any, list[str]] = defaultdict(list)
+    for name in obj_mean:
+        cats[category[name]].append(name)
+    cat_mean = {c: np.nanmean(np.stack([obj_mean[o] for o in names]), axis=0)
+                for c, names in cats.items()}
+    means = np.stack(list(cat_mean.values())) if cat_mean else np.zeros((0, n))
+    between = np.nanstd(means, axis=0, ddof=1) if len(means) > 1 else np.full(n, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = between / within
+    pairs = []
+    for name, lks in by_obj.items():
+        for a, b in itertools.combinations(lks, 2):
+            pairs.append(_rms(a.roi.features, b.roi.features, a.roi.known, b.roi.known))
+    cat_d = [(float(np.sqrt(np.nanmean((cat_mean[a] - cat_mean[b]) ** 2))), a, b)
+             for a, b in itertools.combinations(cat_mean, 2)]
+    nearest = min(cat_d) if cat_d else (math.nan, None, None)
+    pairs_a = np.asarray([p for p in pairs if math.isfinite(p)])
+    return {
+        "features": list(FEATURE_NAMES),
+        "within": within.tolist(), "between": between.tolist(), "ratio": ratio.tolist(),
+        "objects": len(by_obj), "categories": len(cat_mean),
+        "looks": int(sum(len(v) for v in by_obj.values())),
+        "look_distance_median": float(np.median(pairs_a)) if pairs_a.size else math.nan,
+        "look_distance_p90": float(np.percentile(pairs_a, 90)) if pairs_a.size else math.nan,
+        "nearest_categories_distance": nearest[0],
+        "nearest_categories": [list(nearest[1]) if nearest[1] else None,
+                               list(nearest[2]) if nearest[2] else None],
+    }
+
+
+def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
+    """ROI purity and merges over every look."""
+    purities = np.asarray([lk.purity for lk in looks if lk.obj is not None])
+    merges = [lk for lk in looks if len(lk.merged) > 1]
+    return {
+        "rois": len(looks),
+        "rois_on_ground": sum(1 for lk in looks if lk.obj is None),
+        "purity_median": float(np.median(purities)) if purities.size else math.nan,
+        "purity_p05": float(np.percentile(purities, 5)) if purities.size else math.nan,
+        "impure": int((purities < PURE_SHARE).sum()),
+        "merges": len(merges),
+        "merged_pairs": sorted({" + ".join(sorted(lk.merged)) for lk in merges}),
+    }
+
+
+def report(log: LookLog) -> dict[str, Any]:
+    """Everything ``roger features`` writes to features.json."""
+    focus = [lk for lk in log.looks if lk.stage == "scan" or lk.focus]
+    return {
+        "world": log.world.source, "frames": log.frames,
+        "all_looks": feature_stats(log.looks, log.world),
+        "focus_looks": feature_stats(focus, log.world),
+        "segmentation": segmentation_stats(log.looks),
+        "ratio_target": RATIO_TARGET,
+    }
+
+
+def markdown(result: dict[str, Any]) -> str:
+    """The report as a Markdown table."""
+    lines = [f"Features on `{result['world']}` ({result['frames']} frames).", ""]
+    for key, title in (("focus_looks", "initial-scan looks and looks at the focus"),
+                       ("all_looks", "every look (all ROIs of every frame)")):
+        s = result[key]
+        lines += [f"**{title}**: {s['looks']} pure looks of {s['objects']} objects in "
+                  f"{s['categories']} categories.", "",
+                  "| feature | within-object sd | between-category sd | ratio |",
+                  "|---|---|---|---|"]
+        for f, w, b, r in zip(s["features"], s["within"], s["between"], s["ratio"],
+                              strict=True):
+            flag = "" if not math.isfinite(r) or r >= result["ratio_target"] else " (< 2)"
+            lines.append(f"| {f} | {w:.4f} | {b:.4f} | {r:.2f}{flag} |")
+        lines += ["", f"Two looks of one object: median {s['look_distance_median']:.4f}, "
+                  f"p90 {s['look_distance_p90']:.4f} (RMS over the features known in both); "
+                  f"the two nearest categories: {s['nearest_categories_distance']:.4f} apart.",
+                  ""]
+    g = result["segmentation"]
+    lines += [f"**ROIs**: {g['rois']} ({g['rois_on_ground']} on no object); purity median "
+              f"{g['purity_median']:.3f}, 5th percentile {g['purity_p05']:.3f}; "
+              f"{g['impure']} below {PURE_SHARE}; {g['merges']} merge two objects"
+              + (f" ({', '.join(g['merged_pairs'])})" if g["merged_pairs"] else "") + ".", ""]
+    return "\n".join(lines)
+
+
+def plot(result: dict[str, Any], path: Path) -> None:
+    """Within vs between spread per feature, focus looks, with the ratio target."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = result["focus_looks"]
+    x = np.arange(len(s["features"]))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ax.bar(x - 0.2, s["within"], 0.4, label="within one object (sd)", color="tab:red")
+    ax.bar(x + 0.2, s["between"], 0.4, label="between categories (sd)", color="tab:blue")
+    ax.set_xticks(x, s["features"])
+    ax.set_ylabel("feature units")
+    ax.legend()
+    ax.set_title("Spread of each feature")
+    ratio = np.nan_to_num(np.asarray(s["ratio"], float), nan=0.0)
+    bx.bar(x, ratio, color=["tab:green" if r >= result["ratio_target"] else "tab:orange"
+                            for r in ratio])
+    bx.axhline(result["ratio_target"], color="k", ls="--", lw=1, label="target")
+    bx.set_xticks(x, s["features"])
+    bx.set_ylabel("between / within")
+    bx.set_title("Does each feature tell categories apart?")
+    bx.legend()
+    fig.suptitle(f"{Path(result['world']).name}: looks of the initial scan and of the focus")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_looks_csv(log: LookLog, path: Path) -> None:
+    """Every look, one row: stage, gaze, focus, object, purity, position, features."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["stage", "gaze", "focus", "object", "purity", "merged", "x", "y", "z",
+                    *FEATURE_NAMES, "W_known"])
+        for lk in log.looks:
+            r = lk.roi
+            w.writerow([lk.stage, lk.gaze, int(lk.focus), lk.obj or "", f"{lk.purity:.3f}",
+                        "+".join(lk.merged), *(f"{v:.4f}" for v in r.position),
+                        *(f"{v:.5f}" for v in r.features), int(r.known[-1])])
+
+
+def write(log: LookLog, out: Path) -> dict[str, Any]:
+    """features.json, features.md, features.png and looks.csv in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    result = report(log)
+    atomic_write_bytes(out / "features.json", (json.dumps(result, indent=2) + "\n").encode())
+    atomic_write_bytes(out / "features.md", markdown(result).encode())
+    write_looks_csv(log, out / "looks.csv")
+    plot(result, out / "features.png")
+    return result
