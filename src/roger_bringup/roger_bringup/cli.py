@@ -148,6 +148,29 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_features(args: argparse.Namespace) -> int:
+    """``roger features``: do the features of one object repeat across the robot's looks?"""
+    from roger_experiments import feature_report
+    from roger_sim.world import load_world
+
+    result = feature_report.write(
+        feature_report.collect_looks(load_world(args.world), seed=args.seed), args.out)
+    print(feature_report.markdown(result))
+    print(f"written: {args.out / 'features.md'}, features.json, features.png, looks.csv")
+    return 0
+
+
+def cmd_table1(args: argparse.Namespace) -> int:
+    """``roger table1``: the paper's Table 1 as Roger perceives the four boxes."""
+    from roger_experiments import table1
+    from roger_sim.world import load_world
+
+    result = table1.write(load_world(args.world), args.out, seed=args.seed)
+    print(table1.markdown(result))
+    print(f"written: {args.out / 'table1.md'}, {args.out / 'table1.json'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``roger``."""
     parser = argparse.ArgumentParser(prog="roger", description=__doc__)
@@ -191,6 +214,18 @@ def main(argv: list[str] | None = None) -> None:
                          help="train through the multi-process graph instead of in process")
     p_train.add_argument("--quiet", action="store_true", help="no progress bars")
     p_train.set_defaults(func=cmd_train)
+    p_feat = sub.add_parser("features", help="do the features repeat? within- vs "
+                            "between-category spread of every feature, ROI purity")
+    p_feat.add_argument("--world", type=Path, default=DEMO_WORLD, help="world file (YAML)")
+    p_feat.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
+    p_feat.add_argument("--out", type=Path, default=Path("runs/features"),
+                        help="output folder")
+    p_feat.set_defaults(func=cmd_features)
+    p_t1 = sub.add_parser("table1", help="the paper's Table 1: the four boxes' perceived I, D, W")
+    p_t1.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")
+    p_t1.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
+    p_t1.add_argument("--out", type=Path, default=Path("runs/table1"), help="output folder")
+    p_t1.set_defaults(func=cmd_table1)
     args = parser.parse_args(argv)
     from roger_bringup.orchestrator import StopRequested
     try:
