@@ -5,6 +5,8 @@ That the core imports without ROS is checked elsewhere.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from perception_synth import (
@@ -62,10 +64,20 @@ def test_equations_1_and_2_clip_and_work_per_resolution() -> None:
 
 def test_equation_3_on_hand_computed_disparities() -> None:
     # s / s_max = 0.5, -0.5, 1, 0 -> mean 0.25 -> squared deviations .0625 .5625 .5625 .0625
-    assert float(stereo_feature(np.array([1.0, -1.0, 2.0, 0.0]), 2.0)) == pytest.approx(0.3125)
+    s, known = stereo_feature(np.array([1.0, -1.0, 2.0, 0.0]), 2.0)
+    assert float(s) == pytest.approx(0.3125) and bool(known)
     # Clipped to [-1, 1]: the largest possible value is 1.
-    assert float(stereo_feature(np.array([5.0, -5.0]), 2.0)) == pytest.approx(1.0)
-    assert float(stereo_feature(np.full(7, 1.3), 2.0)) == pytest.approx(0.0)
+    assert float(stereo_feature(np.array([5.0, -5.0]), 2.0)[0]) == pytest.approx(1.0)
+    assert float(stereo_feature(np.full(7, 1.3), 2.0)[0]) == pytest.approx(0.0)
+
+
+def test_equation_3_leaves_failed_matches_out_and_needs_enough_samples() -> None:
+    # A failed match (NaN) is not a measurement: M and N count the valid samples only.
+    s, known = stereo_feature(np.array([1.0, np.nan, -1.0, 2.0, np.nan, 0.0]), 2.0)
+    assert float(s) == pytest.approx(0.3125) and bool(known)
+    per_k, known_k = stereo_feature(np.array([[1.0, -1.0, 2.0, 0.0],
+                                              [np.nan, np.nan, np.nan, 0.5]]), 2.0, min_valid=2)
+    assert known_k.tolist() == [True, False] and per_k[1] == 0.0
 
 
 def test_equations_4_and_5() -> None:
@@ -118,11 +130,15 @@ def test_perceived_intensity_rises_with_world_intensity_roughly_proportionally()
 def test_perceived_size_keeps_the_order_of_world_sizes() -> None:
     sizes = (0.06, 0.09, 0.12)
     objects = [Shape("sphere", x, y, s, 90.0) for s, (x, y) in zip(sizes, SPREAD, strict=False)]
-    cfg = PerceptionConfig()
-    rois = _by_object(Perception(cfg).process(make_frame(objects, gaze=CENTRE_GAZE)), objects)
+    perception = Perception(PerceptionConfig())
+    frame = make_frame(objects, gaze=CENTRE_GAZE)
+    rois = _by_object(perception.process(frame), objects)
     d = np.array([rois[i].features[D_IDX] for i in range(3)])
     assert np.all(np.diff(d) > 0), d
-    np.testing.assert_allclose(d * cfg.d_max_m, sizes, rtol=0.3)
+    # A sphere's silhouette is a disc: the side of a square of its area is sqrt(pi) / 2 of
+    # its diameter.
+    np.testing.assert_allclose(d * perception.d_max(frame.camera) / (math.sqrt(math.pi) / 2),
+                               sizes, rtol=0.25)
 
 
 def test_perceived_weight_keeps_order_and_stays_with_the_object() -> None:

@@ -80,7 +80,7 @@ def test_relative_disparities_recover_a_known_relief_and_equation_3() -> None:
     np.testing.assert_allclose(s[0, top], 0.0, atol=0.15)
     np.testing.assert_allclose(s[0, ~top], -2.0, atol=0.15)
     # Equation 3 with s_max = 3 px: half the samples at 0, half at -2/3 -> variance 1/9.
-    assert float(stereo_feature(s[0], 3.0)) == pytest.approx(1.0 / 9.0, abs=0.01)
+    assert float(stereo_feature(s[0], 3.0)[0]) == pytest.approx(1.0 / 9.0, abs=0.01)
 
 
 def test_a_flat_shift_has_no_relief() -> None:
@@ -93,7 +93,7 @@ def test_a_flat_shift_has_no_relief() -> None:
                              0.02)
     assert s.shape == (2, 32)
     assert np.abs(s).max() < 0.2
-    assert float(stereo_feature(s[0], 3.0)) < 1e-3
+    assert float(stereo_feature(s[0], 3.0)[0]) < 1e-3
 
 
 def test_the_smoothness_prior_settles_the_aperture_problem() -> None:
@@ -106,10 +106,12 @@ def test_the_smoothness_prior_settles_the_aperture_problem() -> None:
     pts = rng.uniform(40, 88, (32, 2))
     s = relative_disparities([stripes], [noisy], (64.0, 64.0), (64.0, 64.0), f, pts, [3], 3,
                              0.05)
-    np.testing.assert_allclose(s, 0.0, atol=0.5)
+    np.testing.assert_allclose(s, 0.0, atol=0.5)  # no NaN either: every sample settled
     loose = relative_disparities([stripes], [noisy], (64.0, 64.0), (64.0, 64.0), f, pts, [3], 3,
                                  0.0)
-    assert np.abs(loose).max() > np.abs(s).max()
+    # Without the prior, ambiguous samples wander off, many to the ends of the search
+    # range: failed matches (NaN), left out of equation 3.
+    assert np.isnan(loose).any() or np.nanmax(np.abs(loose)) > np.abs(s).max()
 
 
 def test_blobs_are_paired_with_the_same_object_in_the_other_retina() -> None:

@@ -27,6 +27,8 @@ FEATURE_NAMES: tuple[str, ...] = (
 FEATURE_DIM: int = len(FEATURE_NAMES)
 #: Index of the weight feature, unknown until a haptic improvement measured it.
 WEIGHT_INDEX: int = FEATURE_NAMES.index("W")
+#: Index of the size feature, unknown when the silhouette is cut (retina edge, occluder).
+SIZE_INDEX: int = FEATURE_NAMES.index("D")
 
 
 class Action(IntEnum):

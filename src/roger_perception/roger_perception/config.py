@@ -39,7 +39,10 @@ class PerceptionConfig:
             correlation window used to measure disparity.
         stereo_smoothness: Weight of the prior that pulls an ambiguous disparity to the
             ROI's mean disparity (cost += smoothness * t^2 * local energy).
-        d_max_m: D_max of equation 4, metres.
+        size_view_distance_m: D_max of equation 4 is the width of the retina's field of
+            view at this distance from the eyes, metres: the nearest an object can stand in
+            view (world files keep x >= 0.3 m; the eyes are 0.8 m above the ground), so no
+            object that fits the retina whole reads D above 1.
         w_max_kg: W_max of equation 5, the heaviest weight an arm can lift, kilograms.
         haptic_radius_m: A haptic reading belongs to a ROI whose position lies within this
             distance of the contact point.
@@ -80,6 +83,13 @@ class PerceptionConfig:
             (``sched_yield``), which on a 2-core machine takes a core from the other
             nodes of the graph, and the filters here are too small to gain from threads
             (docs/performance.md). Values never depend on it.
+        min_rim_share: A ROI whose outer contour is its own edge against the ground on
+            less than this share (the rest borders another ROI or the retina's edge) has
+            I, T, S and D unknown: they would measure the occluder or the cut, not the
+            object.
+        min_stereo_samples: S^(k) is unknown when fewer of the M samples were matched
+            (a sample whose disparity search ends at its range, or whose relief exceeds
+            the object's size, is a failed match).
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -91,7 +101,7 @@ class PerceptionConfig:
     stereo_search_px: int = 3
     match_window_sigmas: float = 2.0
     stereo_smoothness: float = 0.02
-    d_max_m: float = 0.35
+    size_view_distance_m: float = 0.77
     w_max_kg: float = 2.0
     haptic_radius_m: float = 0.08
     mapped_radius_m: float = 0.08
@@ -121,6 +131,8 @@ class PerceptionConfig:
     weight_tactile: float = 1.0
     weight_unmapped: float = 2.0
     cv_threads: int = 1
+    min_rim_share: float = 0.5
+    min_stereo_samples: int = 8
 
     def __post_init__(self) -> None:
         sig = tuple(self.log_sigmas)
@@ -146,11 +158,19 @@ class PerceptionConfig:
         if (not isinstance(self.cv_threads, int) or isinstance(self.cv_threads, bool)
                 or self.cv_threads < 1):
             raise _fail("cv_threads", self.cv_threads, "need an integer >= 1")
+        if not (_finite(self.min_rim_share) and 0.0 <= self.min_rim_share <= 1.0):
+            raise _fail("min_rim_share", self.min_rim_share, "need a share in [0, 1]")
+        if (not isinstance(self.min_stereo_samples, int)
+                or isinstance(self.min_stereo_samples, bool)
+                or not 1 <= self.min_stereo_samples <= self.samples_m):
+            raise _fail("min_stereo_samples", self.min_stereo_samples,
+                        "need an integer in [1, samples_m]")
         if not isinstance(self.min_roi_pixels, int) or self.min_roi_pixels < 1:
             raise _fail("min_roi_pixels", self.min_roi_pixels, "need an integer >= 1")
         positive = (
             "kernel_radius_sigmas", "contrast_max", "vicinity_sigmas", "s_max_m",
-            "match_window_sigmas", "d_max_m", "w_max_kg", "haptic_radius_m", "mapped_radius_m",
+            "match_window_sigmas", "size_view_distance_m", "w_max_kg", "haptic_radius_m",
+            "mapped_radius_m",
             "fg_threshold", "epipolar_tol_px", "max_ray_gap_m", "max_intensity_diff",
             "size_norm", "motion_norm_m", "grad_threshold", "sweep_step_px",
             "match_cost_trunc", "merge_distance_m", "max_match_cost",

@@ -11,6 +11,7 @@ dark ground, so I^(k) rises with the object's intensity (Table 1).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -42,6 +43,90 @@ def vicinity_magnitude(response: np.ndarray, radius: int) -> np.ndarray:
     """Largest |G| within a (2 radius + 1)^2 square around every pixel."""
     k = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     return cv2.dilate(np.abs(response), k)
+
+
+@dataclass(frozen=True)
+class Rim:
+    """Where a ROI's outer contour is its own silhouette edge (see :func:`rim_samples`).
+
+    Attributes:
+        points: (M, 2) sample points (u, v) on the own edge.
+        own_share: Share of the contour that borders the ground.
+        on_border: The contour touches the retina's edge (the silhouette is cut).
+        neighbours: Labels of the other ROIs the contour touches.
+    """
+
+    points: np.ndarray
+    own_share: float
+    on_border: bool
+    neighbours: frozenset[int]
+
+
+def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], labels: np.ndarray,
+                own: int, m: int) -> Rim:
+    """M points along the part of a ROI's outer contour that is its own silhouette edge.
+
+    The contour of a ROI is the object's edge against the ground only where the ground
+    lies outside it: where another ROI touches it (an occlusion, or a neighbour in front)
+    or the retina's edge cuts it, the LoG responds to the other object or to nothing, not
+    to this object's contrast. Those contour points are left out; the M samples are spread
+    evenly (by arc length) over the rest. With no own edge at all, the samples are spread
+    over the whole contour.
+
+    Args:
+        mask: The ROI's mask inside ``bbox``.
+        bbox: (u0, v0, u1, v1) of the mask in the image.
+        labels: Label image of the retina: 0 ground, ``own`` this ROI, others other ROIs.
+        own: This ROI's label.
+        m: Number of samples.
+    """
+    h, w = labels.shape
+    padded = np.pad(mask.astype(np.uint8), 1)
+    contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    pts = max(contours, key=len).reshape(-1, 2).astype(np.int64) - 1
+    pts[:, 0] += bbox[0]
+    pts[:, 1] += bbox[1]
+    u, v = pts[:, 0], pts[:, 1]
+    on_border = (u <= 0) | (v <= 0) | (u >= w - 1) | (v >= h - 1)
+    # Another ROI within 1 px (8-neighbourhood) of the contour pixel.
+    other = np.zeros(len(pts), bool)
+    neighbours: set[int] = set()
+    for du in (-1, 0, 1):
+        for dv in (-1, 0, 1):
+            lab = labels[np.clip(v + dv, 0, h - 1), np.clip(u + du, 0, w - 1)]
+            hit = (lab != 0) & (lab != own)
+            other |= hit
+            neighbours.update(int(x) for x in np.unique(lab[hit]))
+    edge = ~(on_border | other)
+    chosen = pts[edge] if edge.any() else pts
+    seg = np.linalg.norm(np.diff(np.vstack([chosen, chosen[:1]]).astype(float), axis=0),
+                         axis=1)
+    # Arc length over the kept points, counting a jump between two kept runs as 1 px.
+    seg = np.minimum(seg, 1.5)
+    arc = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    total = float(seg.sum())
+    idx = np.zeros(m, int) if total <= 0 else \
+        np.searchsorted(arc, (np.arange(m) + 0.5) * total / m, side="right") - 1
+    return Rim(chosen[idx].astype(np.float64) + 0.5, float(edge.mean()),
+               bool(on_border.any()), frozenset(neighbours))
+
+
+def own_vicinity(magnitude: np.ndarray, labels: np.ndarray, own: int, bbox: tuple[int, ...],
+                 radius: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Largest |G| within a (2 radius + 1)^2 square around every pixel near one ROI,
+    other ROIs' pixels left out (their own edges are not this object's contrast).
+
+    Returns:
+        (window of the dilated magnitude, (u, v) of its top-left corner in the image).
+    """
+    h, w = labels.shape
+    pad = radius + 1
+    u0, v0 = max(0, bbox[0] - pad), max(0, bbox[1] - pad)
+    u1, v1 = min(w, bbox[2] + pad), min(h, bbox[3] + pad)
+    lab = labels[v0:v1, u0:u1]
+    win = np.where((lab != 0) & (lab != own), 0.0, magnitude[v0:v1, u0:u1])
+    k = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    return cv2.dilate(win.astype(np.float32), k), (u0, v0)
 
 
 def sample_at(images: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -81,23 +166,30 @@ def intensity_texture(samples: np.ndarray, gmax: float | np.ndarray
     return i_k, t_k
 
 
-def stereo_feature(disparities: np.ndarray, s_max: float) -> np.ndarray:
-    """S^(k) (equation 3): variance of the normalised disparities of the M samples.
+def stereo_feature(measurements: np.ndarray, s_max: float, min_valid: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """S^(k) (equation 3): variance of the normalised stereo measurements of the samples.
 
-    N of equation 3 equals M here (the mean is over the same samples). Normalised
-    disparities are clipped to [-1, 1], so S lies in [0, 1].
+    A sample whose measurement failed is NaN and left out: M and N of equation 3 are the
+    number of valid samples (the mean is over the same samples). Normalised measurements
+    are clipped to [-1, 1], so S lies in [0, 1].
 
     Args:
-        disparities: (M,) for one resolution, or (K, M).
-        s_max: s_max, pixels.
+        measurements: (M,) for one resolution, or (K, M); NaN where a match failed.
+        s_max: s_max, in the measurements' unit.
+        min_valid: Fewer valid samples than this leave S^(k) unknown (0).
 
     Returns:
-        S of shape disparities.shape[:-1] (0-d for one resolution).
+        (S, known), each of shape measurements.shape[:-1].
     """
-    s = np.clip(np.asarray(disparities, np.float64) / s_max, -1.0, 1.0)
-    m = s.shape[-1]
-    mean_n = s.sum(axis=-1, keepdims=True) / m  # (1/N) sum_n s_{i+n} / s_max, N = M
-    return ((s - mean_n) ** 2).sum(axis=-1) / m  # eq. 3
+    s = np.clip(np.asarray(measurements, np.float64) / s_max, -1.0, 1.0)
+    valid = np.isfinite(s)
+    m = valid.sum(axis=-1)
+    known = m >= max(1, min_valid)
+    sv = np.where(valid, s, 0.0)
+    mean_n = sv.sum(axis=-1, keepdims=True) / np.maximum(m, 1)[..., None]  # (1/N) sum s/s_max
+    var = (np.where(valid, sv - mean_n, 0.0) ** 2).sum(axis=-1) / np.maximum(m, 1)  # eq. 3
+    return np.where(known, var, 0.0), known
 
 
 def size_feature(d_m: float, d_max_m: float) -> float:
@@ -115,16 +207,18 @@ def weight_feature(w_kg: float, w_max_kg: float) -> float:
 
 
 def assemble(intensity: np.ndarray, texture: np.ndarray, stereo: np.ndarray, size: float,
-             weight: float | None) -> tuple[np.ndarray, np.ndarray]:
+             weight: float | None, stereo_known: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Feature vector in FEATURE_NAMES order and its known mask.
 
     Args:
         intensity, texture, stereo: I^(k), T^(k), S^(k) for k = 1, 2, 3.
         size: D.
         weight: W, or None when no haptic improvement has measured it yet.
+        stereo_known: Which S^(k) were measured (default: all).
 
     Returns:
-        (features float32 (FEATURE_DIM,), known bool (FEATURE_DIM,)); an unknown W holds 0.
+        (features float32 (FEATURE_DIM,), known bool (FEATURE_DIM,)); unknown ones hold 0.
     """
     feats = np.zeros(FEATURE_DIM, np.float32)
     for prefix, values in (("I", intensity), ("T", texture), ("S", stereo)):
@@ -132,6 +226,9 @@ def assemble(intensity: np.ndarray, texture: np.ndarray, stereo: np.ndarray, siz
             feats[FEATURE_NAMES.index(f"{prefix}{k + 1}")] = values[k]
     feats[FEATURE_NAMES.index("D")] = size
     known = np.ones(FEATURE_DIM, bool)
+    if stereo_known is not None:
+        for k in range(3):
+            known[FEATURE_NAMES.index(f"S{k + 1}")] = bool(stereo_known[k])
     if weight is None:
         known[WEIGHT_INDEX] = False
     else:

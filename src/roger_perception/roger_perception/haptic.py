@@ -1,12 +1,14 @@
 """Haptic readings kept by position, so that later frames of the same object carry W.
 
 A haptic improvement happens once per object, but the weight feature must stay known in
-every later frame that shows the object. Readings are stored by contact point (robot
-frame); a ROI takes the weight of the nearest reading within ``radius`` of its position.
-A new reading within ``radius`` of an old one replaces it (the object was re-weighed).
-Distances are taken on the ground plane (x, y): objects stand on the ground, never on one
-another, and the hand touches the top of an object while a ROI's position is the centre of
-its visible surface, which lies up to half the object's height lower (0.15 m for Table 1).
+every later frame that shows the object. A reading belongs to the object the hand touched:
+the ROI of the frame nearest the contact point on the ground plane, within half the ROI's
+size plus ``radius`` (the hand may touch a large object anywhere on its top, far from the
+centre of its visible surface). The reading is stored at that ROI's position, so that
+later ROIs of the object, whose positions jitter by a few centimetres, find it within
+``radius``; with no ROI near, at the contact point. A new reading within ``radius`` of an
+old one replaces it (the object was re-weighed). Distances are taken on the ground plane
+(x, y): objects stand on the ground, never on one another.
 """
 
 from __future__ import annotations
@@ -34,13 +36,23 @@ class HapticMemory:
     def __len__(self) -> int:
         return len(self._weights)
 
-    def add(self, reading: HapticReading) -> bool:
-        """Store a reading; returns False (and stores nothing) without a valid contact."""
+    def add(self, reading: HapticReading, positions: Sequence[Sequence[float]] = (),
+            sizes: Sequence[float] = ()) -> bool:
+        """Store a reading at the touched object's position (``positions`` and ``sizes``:
+        the ROIs of the reading's frame, module docstring); returns False (and stores
+        nothing) without a valid contact."""
         if not reading.contact or not math.isfinite(reading.weight) or reading.weight < 0:
             return False
         pos = np.asarray(reading.position, float)
         if not np.all(np.isfinite(pos)):
             return False
+        if len(positions):
+            rois = np.asarray(positions, float)
+            d = np.linalg.norm(rois[:, :2] - pos[:2], axis=1)
+            reach = 0.5 * np.asarray(sizes, float) + self.radius
+            inside = np.flatnonzero(d <= reach)
+            if inside.size:
+                pos = rois[inside[np.argmin(d[inside])]]
         i = self._nearest(pos)
         if i is not None:
             self._positions[i] = pos

@@ -24,24 +24,24 @@ import numpy as np
 
 from roger_common.errors import MessageError
 from roger_common.geometry import project_point
-from roger_common.types import CameraModel, EyePose, Roi, StereoFrame
+from roger_common.types import SIZE_INDEX, WEIGHT_INDEX, CameraModel, EyePose, Roi, StereoFrame
 from roger_perception.activation import is_mapped, motion_term, pre_attentive_activation
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
     assemble,
     g_max,
     intensity_texture,
+    own_vicinity,
+    rim_samples,
     sample_at,
     size_feature,
     stereo_feature,
-    vicinity_magnitude,
     vicinity_radius,
     weight_feature,
 )
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
-from roger_perception.segmentation import contour_samples
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities,
@@ -77,6 +77,11 @@ class Perception:
         #: Left-retina ROI of every pixel of the last frame: 0 none, roi_id + 1 (viewers
         #: draw the paper's thin lines between ROIs from it; tests score it).
         self.last_roi_labels: np.ndarray = np.zeros((0, 0), np.int32)
+
+    def d_max(self, camera: CameraModel) -> float:
+        """D_max of equation 4, metres: the width of the retina's field of view at
+        ``size_view_distance_m`` (from the lens: ``width / focal_px``)."""
+        return self.config.size_view_distance_m * camera.width / camera.focal_px
 
     @property
     def g_max(self) -> tuple[float, ...]:
@@ -129,10 +134,13 @@ class Perception:
         f = fundamental_matrix(frame.camera, frame.left_pose, frame.right_pose)
         t3 = time.perf_counter()
         timings["match"] = t3 - t2
+        # Metric size of each ROI: the side of a square of its silhouette's area at its
+        # depth (one length for every shape, from all its pixels: its width alone jitters
+        # by the pixels at its two ends).
+        sizes = [math.sqrt(o.blob.area) * o.depth / frame.camera.focal_px for o in seen]
         if frame.haptic is not None:
-            self.haptic_memory.add(frame.haptic)
-        vicinity = np.stack([vicinity_magnitude(g, r)
-                             for g, r in zip(left_log, self._vicinity, strict=True)])
+            self.haptic_memory.add(frame.haptic, [o.position for o in seen], sizes)
+        magnitudes = [np.abs(g) for g in left_log]
         gmax = np.asarray(self._gmax)
         image_area = float(frame.camera.width * frame.camera.height)
         rois: list[Roi] = []
@@ -140,11 +148,18 @@ class Perception:
         for roi_id, obj in enumerate(seen):
             u0, v0, u1, v1 = obj.blob.bbox
             roi_labels[v0:v1, u0:u1][obj.blob.mask] = roi_id + 1
+        for roi_id, obj in enumerate(seen):
             ta = time.perf_counter()
             bl = obj.blob
             position = obj.position
-            points = contour_samples(bl, cfg.samples_m)
-            intensity, texture = intensity_texture(sample_at(vicinity, points), gmax)  # 1-2
+            own = roi_id + 1
+            rim = rim_samples(bl.mask, bl.bbox, roi_labels, own, cfg.samples_m)
+            points = rim.points
+            samples = []
+            for mag, r in zip(magnitudes, self._vicinity, strict=True):
+                win, (wu, wv) = own_vicinity(mag, roi_labels, own, bl.bbox, r)
+                samples.append(sample_at(win, points - (wu, wv)))
+            intensity, texture = intensity_texture(np.stack(samples), gmax)  # eqs. 1-2
             depth_l = project_point(frame.camera, frame.left_pose, position)[2]
             depth_r = project_point(frame.camera, frame.right_pose, position)[2]
             disparities = relative_disparities(left_log, right_log, bl.centroid,
@@ -154,12 +169,26 @@ class Perception:
             metres_per_px = relief_per_pixel(frame.camera, frame.left_pose, frame.right_pose,
                                              position)
             relief = disparities * (metres_per_px if math.isfinite(metres_per_px) else 0.0)
-            stereo = stereo_feature(relief, cfg.s_max_m)  # eq. 3
-            size_m = obj.width_px * obj.depth / frame.camera.focal_px
+            # A sample whose disparity search found no minimum inside the search range, or
+            # whose relief exceeds the object's own size, is a failed match, not a shape.
+            size_m = sizes[roi_id]
+            relief[np.abs(relief) > size_m] = np.nan
+            stereo, stereo_known = stereo_feature(relief, cfg.s_max_m, cfg.min_stereo_samples)
             weight_kg = self.haptic_memory.weight_near(position)
             weight = None if weight_kg is None else weight_feature(weight_kg, cfg.w_max_kg)
             feats, known = assemble(intensity, texture, stereo,
-                                    size_feature(size_m, cfg.d_max_m), weight)  # eqs. 4-5
+                                    size_feature(size_m, self.d_max(frame.camera)),
+                                    weight, stereo_known)  # eqs. 3-5
+            if rim.own_share < cfg.min_rim_share:
+                # Too little of its silhouette is its own edge (cut by the retina's edge,
+                # or behind another object): I, T, S and D would measure something else.
+                known[:WEIGHT_INDEX] = False
+                feats[:WEIGHT_INDEX] = 0.0
+            elif rim.on_border or any(seen[n - 1].depth < obj.depth for n in rim.neighbours):
+                # Its silhouette is cut by the retina's edge or by a nearer object: its
+                # extent is not the object's.
+                known[SIZE_INDEX] = False
+                feats[SIZE_INDEX] = 0.0
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
             motion = motion_term(position, self._previous_positions, self._previous_view,

@@ -179,7 +179,8 @@ def relative_disparities(left_resps: Sequence[np.ndarray], right_resps: Sequence
 
     Returns:
         (K, M) float64 sub-pixel shifts along the epipolar line, one row per resolution,
-        in [-search_px, search_px].
+        in (-search_px, search_px); NaN where the cost has no minimum inside the search
+        range (the best shift is one of its ends: a failed match, not a measurement).
     """
     e_left = epipolar_direction(f.T @ np.array([c_right[0], c_right[1], 1.0]))
     e_right = epipolar_direction(f @ np.array([c_left[0], c_left[1], 1.0]))
@@ -216,6 +217,7 @@ def relative_disparities(left_resps: Sequence[np.ndarray], right_resps: Sequence
         ok = den > 1e-18
         s[inner] += np.clip(np.where(ok, 0.5 * (cm - cp) / np.where(ok, den, 1.0), 0.0),
                             -0.5, 0.5)
+        s[~inner] = np.nan
         out[k] = s
     return out
 
