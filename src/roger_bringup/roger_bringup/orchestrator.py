@@ -4,9 +4,9 @@
 network hygiene (localhost discovery, a domain id per run, logs under the run's folder),
 starts the four nodes, waits until each is visible on the graph (no fixed sleeps), records
 the run through its own monitor node, and ends every child on completion, Ctrl-C or SIGTERM.
-A child that dies mid-run (even by SIGKILL) is reported, what it left in /dev/shm is
-removed, and it is started again; it resumes from the run's state folder
-(``ROGER_STATE_DIR``, docs/reliability.md).
+A child that dies mid-run (even by SIGKILL), or that stops answering (no heartbeat,
+roger_common.liveness), is reported, what it left in /dev/shm is removed, and it is started
+again; it resumes from the run's state folder (``ROGER_STATE_DIR``, docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -141,9 +141,12 @@ class Child:
     log_path: Path
     proc: subprocess.Popen[bytes] | None = None
     restarts: int = 0
+    #: time.monotonic() of the last start.
+    started_at: float = 0.0
 
     def start(self, env: dict[str, str]) -> None:
         """Start (or restart) the process, appending to its log."""
+        self.started_at = time.monotonic()
         log = open(self.log_path, "ab")
         try:
             self.proc = subprocess.Popen(
@@ -206,16 +209,24 @@ class Graph:
         """Children that have exited."""
         return [c for c in self.children if not c.alive()]
 
-    def restart(self, child: Child) -> list[str]:
+    def restart(self, child: Child, reason: str | None = None) -> list[str]:
         """Reap a dead child, remove the /dev/shm files nobody holds any more, start it again.
+
+        Args:
+            child: The child to restart.
+            reason: Why a child that is still running must go (say "unresponsive for 8 s"):
+                it is killed first (SIGKILL, which also ends a stopped process). None: the
+                child has exited, and how it ended is the reason.
 
         Returns:
             The /dev/shm files removed.
         """
         if child.proc is not None:
+            if reason is not None and child.proc.poll() is None:
+                child.proc.kill()
             child.proc.wait()
         removed = clean_shm(self.shm_before or set(), [])
-        self.deaths.append({"node": child.name, "reason": child.exit_reason(),
+        self.deaths.append({"node": child.name, "reason": reason or child.exit_reason(),
                             "shm_removed": len(removed)})
         child.restarts += 1
         child.start(self.env)
@@ -230,6 +241,7 @@ class Graph:
         for c in self.children:
             if c.alive():
                 c.proc.send_signal(signal.SIGINT)  # type: ignore[union-attr]
+                c.proc.send_signal(signal.SIGCONT)  # type: ignore[union-attr]  # if stopped
         deadline = time.monotonic() + timeout
         for c in self.children:
             if c.proc is None:
