@@ -244,7 +244,8 @@ class Graph:
         return [c for c in self.children if not c.alive()]
 
     def restart(self, child: Child, reason: str | None = None) -> list[str]:
-        """Reap a dead child, remove the /dev/shm files nobody holds any more, start it again.
+        """Reap a dead child (or kill a hung one), remove the /dev/shm files nobody needs any
+        more, start it again.
 
         Args:
             child: The child to restart.
