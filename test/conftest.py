@@ -2,7 +2,8 @@
 
 Every test run talks only over loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on a
 domain id of its own, logs into a temporary folder, and must leave no child process and
-no new Fast DDS file in /dev/shm behind.
+no new Fast DDS file of its own graph in /dev/shm behind (``shm_ledger`` says which files
+are the test's own, so that another graph running on the machine is never blamed).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from shm_ledger import ShmLedger, domains_in_use
 
 from roger_common.dds import apply_dds_defaults
 
@@ -21,19 +23,21 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 apply_dds_defaults(os.environ)  # the same Fast DDS profile as every Roger process
 os.environ["ROS_LOG_DIR"] = _LOG_DIR
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def free_domain(avoid: set[int] = frozenset()) -> int:
+    """A random domain id in 1-101 that no graph on the machine uses now, nor ``avoid``."""
+    taken = domains_in_use() | set(avoid)
+    free = [d for d in range(1, 102) if d not in taken] or list(range(1, 102))
+    return random.SystemRandom().choice(free)
+
+
 # One domain per test session (pytest-xdist workers or parallel CI runs get different ones).
-os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
+os.environ["ROS_DOMAIN_ID"] = str(free_domain())
+SESSION_DOMAIN = int(os.environ["ROS_DOMAIN_ID"])
 
 REPO = Path(__file__).resolve().parents[1]
 WORLDS = REPO / "worlds"
-
-
-def shm_files() -> set[str]:
-    """Fast DDS files in /dev/shm."""
-    try:
-        return {f for f in os.listdir("/dev/shm") if "fastrtps" in f or "fastdds" in f}
-    except FileNotFoundError:
-        return set()
 
 
 def child_pids() -> set[int]:
@@ -54,28 +58,33 @@ def child_pids() -> set[int]:
 
 
 @pytest.fixture
-def no_leaks():
-    """Fail the test if it leaves a child process or a new /dev/shm file behind.
+def no_leaks(request):
+    """Fail the test if it leaves a child process or a /dev/shm file of its graph behind.
 
-    A leaked file is one that appeared during the test and that no live process holds:
-    files of other graphs running on the machine at the same time are in use (and so are
-    the port files Fast DDS keeps mapped in this process until it exits).
+    A leaked file is one of the test's own graph (its domains: the session's and any
+    ``ros_domain``; or held by its own processes, ``shm_ledger``) that appeared during the
+    test and that no live process holds. Files of other graphs on the machine, and the
+    port files Fast DDS keeps mapped in this process until it exits, are not leaks.
     """
-    from roger_bringup.orchestrator import held_shm_files
-
-    before_shm = shm_files()
+    ledger = ShmLedger().start()
     before_children = child_pids()
-    yield
+    try:
+        yield
+    finally:
+        ledger.stop()
     leaked_children = child_pids() - before_children
-    new_shm = shm_files() - before_shm - held_shm_files()
+    domains = {SESSION_DOMAIN, *getattr(request.node, "roger_domains", ())}
+    new_shm = ledger.leaked(domains)
     assert not leaked_children, f"child processes left running: {sorted(leaked_children)}"
-    assert not new_shm, f"files left in /dev/shm: {sorted(new_shm)}"
+    assert not new_shm, f"files left in /dev/shm: {new_shm}"
 
 
 @pytest.fixture
-def ros_domain() -> int:
-    """A fresh domain id for a test that starts a graph."""
-    return random.SystemRandom().randint(1, 101)
+def ros_domain(request) -> int:
+    """A fresh domain id, used by no graph on the machine now, for a test that starts one."""
+    domain = free_domain({SESSION_DOMAIN})
+    request.node.roger_domains = {*getattr(request.node, "roger_domains", ()), domain}
+    return domain
 
 
 @pytest.fixture

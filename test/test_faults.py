@@ -1,8 +1,11 @@
-"""Fault injection on the real graph: kill -9 each node mid-run, corrupt the stored files.
+"""Fault injection on the real graph: kill -9 each node mid-run, make a callback raise,
+stop a node (kill -STOP), corrupt the stored files.
 
-Killing any one node neither ends the run nor loses a stored object or Q-value: the
-orchestrator restarts it, the memory node reloads its file, the attention node resumes
-from its state file, and cycles.csv stays one row per cycle number.
+Killing any one node, a callback that raises, or a node that stops answering neither ends
+the run nor loses a stored object or Q-value: the orchestrator restarts the node (a hung one
+once its heartbeat has been silent for HANG_TIMEOUT_S), the memory node reloads its file,
+the attention node resumes from its state file, and cycles.csv stays one row per cycle
+number.
 """
 
 from __future__ import annotations
@@ -21,10 +24,17 @@ import pytest
 from conftest import WORLDS
 
 from roger_attention.fsm import State
+from roger_common.liveness import CRASH_EXIT, HANG_TIMEOUT_S
 from roger_common.types import Action
 from roger_memory.persistence import load_snapshot
 
+HERE = Path(__file__).resolve().parent
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
+#: ``roger`` with the memory node replaced by fault_nodes.py (its callback raises on demand).
+ROGER_FAULTY_MEMORY = [sys.executable, "-c", (
+    "import sys; import roger_bringup.orchestrator as o; "
+    "o.NODES = tuple((n, 'fault_nodes' if n == 'memory' else m) for n, m in o.NODES); "
+    "from roger_bringup.cli import main; main(sys.argv[1:])")]
 NODE_MODULES = {"sim": "roger_sim.sim_node", "perception": "roger_perception.perception_node",
                 "memory": "roger_memory.memory_node",
                 "attention": "roger_attention.attention_node"}
@@ -67,11 +77,7 @@ def wait_rows(proc: subprocess.Popen, path: Path, n: int, timeout: float = 120.0
 def test_kill_each_node_mid_run_loses_nothing(no_leaks, tmp_path, ros_domain):
     out = tmp_path / "run"
     cycles = 44
-    proc = subprocess.Popen(
-        [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--policy", "qlearning",
-         "--cycles", str(cycles), "--seed", "1", "--out", str(out), "--quiet",
-         "--domain-id", str(ros_domain), "--timeout", "400"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = start_run(out, cycles, ros_domain)
     killed = []
     try:
         csv_path = out / "cycles.csv"
@@ -92,6 +98,15 @@ def test_kill_each_node_mid_run_loses_nothing(no_leaks, tmp_path, ros_domain):
     status = json.loads((out / "run_status.json").read_text())
     assert status["status"].startswith("done") and status["restarts"] == dict.fromkeys(
         NODE_MODULES, 1), status
+    assert_nothing_lost(out, cycles)
+    # No file of a killed node is left in /dev/shm (no_leaks checks that too).
+    for pid in killed:
+        assert not any(str(pid) in f for f in os.listdir("/dev/shm"))
+
+
+def assert_nothing_lost(out: Path, cycles: int) -> None:
+    """Every cycle recorded once, Table 2's identities, every stored object in the memory
+    file once, and the Q-table equal to the sum of every recorded update."""
     # One row per cycle number, none lost or repeated.
     rows = rows_of(out / "cycles.csv")
     assert [int(r[0]) for r in rows] == list(range(1, cycles + 1))
@@ -112,9 +127,131 @@ def test_kill_each_node_mid_run_loses_nothing(no_leaks, tmp_path, ros_domain):
         if r[4]:
             q[State.from_bits(r[1]).index, int(Action[r[2].upper()])] += ALPHA * float(r[4])
     np.testing.assert_allclose(np.asarray(table["q"]), q, atol=1e-4)
-    # No file of a killed node is left in /dev/shm (no_leaks checks that too).
-    for pid in killed:
-        assert not any(str(pid) in f for f in os.listdir("/dev/shm"))
+
+
+def start_run(out: Path, cycles: int, domain: int, roger: list[str] = ROGER,
+              env: dict[str, str] | None = None) -> subprocess.Popen:
+    """``roger run`` of a Q-learning run on table1, in the background."""
+    return subprocess.Popen(
+        [*roger, "run", "--world", str(WORLDS / "table1.yaml"), "--policy", "qlearning",
+         "--cycles", str(cycles), "--seed", "1", "--out", str(out), "--quiet",
+         "--domain-id", str(domain), "--timeout", "400"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+
+
+def test_callback_exception_is_logged_and_the_node_restarted(no_leaks, tmp_path, ros_domain):
+    out = tmp_path / "run"
+    cycles = 24
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(HERE), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    proc = start_run(out, cycles, ros_domain, ROGER_FAULTY_MEMORY, env)
+    try:
+        wait_rows(proc, out / "cycles.csv", 6)
+        (out / "state" / "raise_in_callback").touch()
+        output, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, output
+    assert f"node memory died (exit {CRASH_EXIT})" in output, output
+    assert not (out / "state" / "raise_in_callback").exists(), "no request reached memory"
+    log = (out / "logs" / "memory.log").read_text()
+    assert "roger-memory: a callback raised RuntimeError: injected fault" in log, log[-3000:]
+    assert "Traceback (most recent call last)" in log and "in on_request" in log
+    status = json.loads((out / "run_status.json").read_text())
+    assert status["restarts"] == {"memory": 1}, status
+    assert [d["reason"] for d in status["deaths"]] == [f"exit {CRASH_EXIT}"], status
+    assert_nothing_lost(out, cycles)
+
+
+#: Exits once process ``argv[1]`` has beaten ``argv[2]`` times on /diagnostics. A process of
+#: its own, not a participant in this one: a participant that outlives the run keeps the
+#: orchestrator's port file mapped while the orchestrator cleans up, and the file is left.
+HEARD = """
+import sys, rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from roger_common.ros_node import RELIABLE
+from roger_common.liveness import HEARTBEAT_TOPIC, heartbeats
+pid, n, beats = int(sys.argv[1]), int(sys.argv[2]), []
+rclpy.init()
+node = rclpy.create_node("test_heartbeats")
+node.create_subscription(DiagnosticArray, HEARTBEAT_TOPIC, lambda m: beats.extend(
+    p for (_, p), _ in heartbeats(m) if p == pid), RELIABLE)
+while len(beats) < n:
+    rclpy.spin_once(node, timeout_sec=0.1)
+node.destroy_node()
+rclpy.try_shutdown()
+"""
+
+
+def heard(domain: int, pid: int, n: int = 3) -> bool:
+    """True once process ``pid`` has beaten ``n`` times on /diagnostics of ``domain``."""
+    proc = subprocess.run([sys.executable, "-c", HEARD, str(pid), str(n)], timeout=60,
+                          env=dict(os.environ, ROS_DOMAIN_ID=str(domain)), check=False)
+    return proc.returncode == 0
+
+
+def wait_pid(proc: subprocess.Popen, name: str) -> int:
+    """Pid of node ``name`` of the run ``proc``, once it runs."""
+    deadline = time.monotonic() + 120
+    while (pid := node_pid(proc.pid, name)) is None:
+        assert time.monotonic() < deadline and proc.poll() is None, f"no {name} process"
+        time.sleep(0.1)
+    return pid
+
+
+def stop_and_wait_restart(proc: subprocess.Popen, name: str, pid: int,
+                          stopped: list[int]) -> float:
+    """kill -STOP node ``name``; seconds until the orchestrator has replaced it."""
+    os.kill(pid, signal.SIGSTOP)
+    stopped.append(pid)
+    t0 = time.monotonic()
+    # The generous bound tells a hang detection from the 90 s stall of old.
+    deadline = t0 + HANG_TIMEOUT_S + 30.0
+    while node_pid(proc.pid, name) in (pid, None):
+        assert proc.poll() is None, f"the run ended:\n{proc.stdout.read()}"
+        assert time.monotonic() < deadline, f"{name} not restarted after STOP"
+        time.sleep(0.1)
+    assert not Path(f"/proc/{pid}").exists(), f"the stopped {name} still exists"
+    return time.monotonic() - t0
+
+
+def test_stopped_node_is_detected_killed_and_restarted(no_leaks, tmp_path, ros_domain):
+    out = tmp_path / "run"
+    cycles = 200  # ~10 s of cycles on a fast machine: the run is still going at each STOP
+    proc = start_run(out, cycles, ros_domain)
+    stopped: list[int] = []
+    detection: dict[str, float] = {}
+    try:
+        pids = {name: wait_pid(proc, name) for name in ("perception", "attention")}
+        # Stopped before its first beat reached the orchestrator, a node would only be
+        # caught by the startup limit (60 s): stop each once it is heard.
+        for name, pid in pids.items():
+            assert heard(ros_domain, pid), f"{name} does not beat on /diagnostics"
+        for name, pid in pids.items():
+            wait_rows(proc, out / "cycles.csv", len(rows_of(out / "cycles.csv")) + 3)
+            detection[name] = stop_and_wait_restart(proc, name, pid, stopped)
+        output, _ = proc.communicate(timeout=300)
+    finally:
+        for pid in stopped:  # a stopped process ignores SIGTERM until it is continued
+            try:
+                os.kill(pid, signal.SIGCONT)
+            except ProcessLookupError:
+                pass
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, output
+    status = json.loads((out / "run_status.json").read_text())
+    print(f"STOP to restart (s): {detection}; run_status: {status}")
+    for name in ("perception", "attention"):
+        assert f"node {name} unresponsive for" in output, output
+        assert detection[name] >= HANG_TIMEOUT_S - 1.0, detection  # not another cause
+    assert status["restarts"] == {"perception": 1, "attention": 1}, status  # no false ones
+    reasons = [d["reason"] for d in status["deaths"]]
+    assert len(reasons) == 2 and all(r.startswith("unresponsive for ") for r in reasons)
+    assert_nothing_lost(out, cycles)
 
 
 @pytest.mark.parametrize("content", [b"not a memory file at all", b"ROGERMEM\x01"])

@@ -4,9 +4,9 @@
 network hygiene (localhost discovery, a domain id per run, logs under the run's folder),
 starts the four nodes, waits until each is visible on the graph (no fixed sleeps), records
 the run through its own monitor node, and ends every child on completion, Ctrl-C or SIGTERM.
-A child that dies mid-run (even by SIGKILL) is reported, what it left in /dev/shm is
-removed, and it is started again; it resumes from the run's state folder
-(``ROGER_STATE_DIR``, docs/reliability.md).
+A child that dies mid-run (even by SIGKILL), or that stops answering (no heartbeat,
+roger_common.liveness), is reported, what it left in /dev/shm is removed, and it is started
+again; it resumes from the run's state folder (``ROGER_STATE_DIR``, docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -79,12 +79,34 @@ def _die_with_parent() -> None:
         pass
 
 
-def shm_files() -> set[str]:
-    """Fast DDS shared-memory files in /dev/shm."""
+def shm_files() -> set[tuple[str, int]]:
+    """Fast DDS shared-memory files in /dev/shm, each as (name, inode).
+
+    The inode tells a file made again under an old name from the old one: Fast DDS takes
+    over the port of a killed participant (of this graph or another) by recreating its
+    files, so a name that was there before the run may still be this run's leftover.
+    """
+    out = set()
     try:
-        return {f for f in os.listdir("/dev/shm") if "fastrtps" in f or "fastdds" in f}
+        for entry in os.scandir("/dev/shm"):
+            if "fastrtps" in entry.name or "fastdds" in entry.name:
+                try:
+                    out.add((entry.name, entry.inode()))
+                except OSError:
+                    continue
     except FileNotFoundError:
-        return set()
+        pass
+    return out
+
+
+def shm_group(name: str) -> str:
+    """The port or segment a Fast DDS file belongs to: ``sem.fastrtps_port7411_mutex`` and
+    ``fastrtps_port7411_el`` belong to ``fastrtps_port7411``."""
+    base = name[4:] if name.startswith("sem.") else name
+    for suffix in ("_mutex", "_el"):
+        if base.endswith(suffix):
+            base = base[:-len(suffix)]
+    return base
 
 
 def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
@@ -94,35 +116,47 @@ def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
     for pid_dir in Path("/proc").iterdir():
         if not pid_dir.name.isdigit() or pid_dir.name in skip:
             continue
+        # One descriptor closing while it is listed (the listing's own, in this process)
+        # must not hide the process's other holds.
         try:
-            for fd in (pid_dir / "fd").iterdir():
+            fds = list((pid_dir / "fd").iterdir())
+        except OSError:
+            fds = []
+        for fd in fds:
+            try:
                 target = os.readlink(fd)
-                if target.startswith("/dev/shm/"):
-                    held.add(target[len("/dev/shm/"):])
+            except OSError:
+                continue
+            if target.startswith("/dev/shm/"):
+                held.add(target[len("/dev/shm/"):])
+        try:
             maps = (pid_dir / "maps").read_text()
-            for line in maps.splitlines():
-                if "/dev/shm/" in line:
-                    held.add(line.split("/dev/shm/", 1)[1].strip())
         except OSError:
             continue
+        for line in maps.splitlines():
+            if "/dev/shm/" in line:
+                held.add(line.split("/dev/shm/", 1)[1].strip())
     return held
 
 
-def clean_shm(before: set[str], pids: list[int]) -> list[str]:
+def clean_shm(before: set[tuple[str, int]], pids: list[int]) -> list[str]:
     """Remove Fast DDS files left in /dev/shm by processes that were killed.
 
-    Only files that appeared during the run and that no live process holds open are
-    removed, so a concurrent graph keeps its own.
+    Only files that appeared during the run (by name and inode) are removed, and only
+    when no live process holds any file of their port or segment: a port's mutex file is
+    never held, not even while its port is in use, so a concurrent graph keeps its own.
 
     Args:
-        before: The files there before the run started (never removed).
+        before: ``shm_files()`` before the run started (never removed).
         pids: Processes whose holds do not count: this process once its ROS context is
             destroyed (Fast DDS keeps a discovery port file mapped until exit, and nobody
             removes it after a peer was killed).
     """
-    held = held_shm_files(ignore=pids)
+    held = {shm_group(n) for n in held_shm_files(ignore=pids)}
     removed = []
-    for name in sorted(shm_files() - before - held):
+    for name, _ in sorted(shm_files() - before):
+        if shm_group(name) in held:
+            continue
         try:
             os.unlink(f"/dev/shm/{name}")
             removed.append(name)
@@ -141,9 +175,12 @@ class Child:
     log_path: Path
     proc: subprocess.Popen[bytes] | None = None
     restarts: int = 0
+    #: time.monotonic() of the last start.
+    started_at: float = 0.0
 
     def start(self, env: dict[str, str]) -> None:
         """Start (or restart) the process, appending to its log."""
+        self.started_at = time.monotonic()
         log = open(self.log_path, "ab")
         try:
             self.proc = subprocess.Popen(
@@ -184,7 +221,7 @@ class Graph:
     env: dict[str, str]
     node_args: dict[str, list[str]]
     children: list[Child] = field(default_factory=list)
-    shm_before: set[str] | None = None
+    shm_before: set[tuple[str, int]] | None = None
     external: tuple[str, ...] = ()
     deaths: list[dict[str, Any]] = field(default_factory=list)
 
@@ -206,16 +243,25 @@ class Graph:
         """Children that have exited."""
         return [c for c in self.children if not c.alive()]
 
-    def restart(self, child: Child) -> list[str]:
-        """Reap a dead child, remove the /dev/shm files nobody holds any more, start it again.
+    def restart(self, child: Child, reason: str | None = None) -> list[str]:
+        """Reap a dead child (or kill a hung one), remove the /dev/shm files nobody needs any
+        more, start it again.
+
+        Args:
+            child: The child to restart.
+            reason: Why a child that is still running must go (say "unresponsive for 8 s"):
+                it is killed first (SIGKILL, which also ends a stopped process). None: the
+                child has exited, and how it ended is the reason.
 
         Returns:
             The /dev/shm files removed.
         """
         if child.proc is not None:
+            if reason is not None and child.proc.poll() is None:
+                child.proc.kill()
             child.proc.wait()
         removed = clean_shm(self.shm_before or set(), [])
-        self.deaths.append({"node": child.name, "reason": child.exit_reason(),
+        self.deaths.append({"node": child.name, "reason": reason or child.exit_reason(),
                             "shm_removed": len(removed)})
         child.restarts += 1
         child.start(self.env)
@@ -230,6 +276,7 @@ class Graph:
         for c in self.children:
             if c.alive():
                 c.proc.send_signal(signal.SIGINT)  # type: ignore[union-attr]
+                c.proc.send_signal(signal.SIGCONT)  # type: ignore[union-attr]  # if stopped
         deadline = time.monotonic() + timeout
         for c in self.children:
             if c.proc is None:

@@ -30,6 +30,7 @@ from roger_bringup.orchestrator import (
 )
 from roger_common.dds import PROFILE_ENV
 from roger_common.errors import RogerError
+from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT, HeartbeatWatch
 from roger_experiments.evaluation import CycleRow, RunRecorder
 from roger_memory.persistence import load_snapshot
 from roger_sim.world import load_world
@@ -75,6 +76,9 @@ class RunOptions:
     view: Path | None = None
     record: Path | None = None
     external: tuple[str, ...] = ()
+    #: Wall seconds without a heartbeat after which a node is killed and restarted; None
+    #: turns the watch off (a node held at a debugger's breakpoint is not killed).
+    hang_timeout_s: float | None = HANG_TIMEOUT_S
 
     def budget(self) -> int:
         """Cycle budget handed to the attention node."""
@@ -215,6 +219,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         observers.append(McapRecorder(opt.record.resolve(), meta=meta, context=context))
     for node in observers:
         executor.add_node(node)
+    watch = HeartbeatWatch(monitor)
     graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers)),
                   shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
@@ -228,7 +233,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         # reach this process's graph cache seconds after the nodes are talking.
         while not (monitor.graph_up() or monitor.cycles > 0):
             executor.spin_once(timeout_sec=0.1)
-            _check_children(graph, restart=False)
+            _check_children(graph, restart=False, watch=watch)
             if time.monotonic() > deadline:
                 raise RunError(f"the graph did not come up within {STARTUP_TIMEOUT_S:.0f} s; "
                                f"node logs are in {out / 'logs'}")
@@ -239,7 +244,8 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         last_cycles, last_progress = -1, time.monotonic()
         while True:
             executor.spin_once(timeout_sec=0.1)
-            _check_children(graph, restart=True, env=env, log=log)
+            _check_children(graph, restart=True, env=env, log=log, watch=watch,
+                            hang_s=opt.hang_timeout_s)
             if monitor.cycles != last_cycles:
                 last_cycles, last_progress = monitor.cycles, time.monotonic()
             elif time.monotonic() - last_progress > STALL_S:
@@ -284,6 +290,10 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         metrics_status = {"status": status, "killed_on_stop": killed,
                           "restarts": {c.name: c.restarts for c in graph.children if c.restarts},
                           "deaths": graph.deaths,
+                          "hang_timeout_s": opt.hang_timeout_s,
+                          "longest_silence_s": {n: round(s, 2) for n, s in
+                                                sorted(watch.silence.longest.items())},
+                          "watch_longest_stall_s": round(watch.silence.own_longest_stall, 2),
                           "duplicate_reports": recorder.duplicates}
         with open(out / "run_status.json", "w") as fh:
             json.dump(metrics_status, fh, indent=2)
@@ -298,16 +308,22 @@ def _complete(recorder: RunRecorder, stable_cycles: int) -> bool:
 
 
 def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = None,
-                    log: TextIO = sys.stdout) -> None:
-    """Report a node process that died, clean what it left in /dev/shm and restart it.
+                    log: TextIO = sys.stdout, watch: HeartbeatWatch | None = None,
+                    hang_s: float | None = HANG_TIMEOUT_S) -> None:
+    """Report a node process that died or hangs, clean what it left in /dev/shm, restart it.
 
     A node that exits with code 2 refused its setup (bad world file, parameter, memory
-    file): restarting it would only fail again, so the run ends with its one line.
+    file): restarting it would only fail again, so the run ends with its one line. Any
+    other end (a callback that raised exits 70, a signal) is restarted. With ``watch``, a
+    running node silent on /diagnostics for ``hang_s`` (or that never beat within
+    ``STARTUP_TIMEOUT_S`` of its start) is killed and restarted the same way.
     """
+    if watch is not None:
+        watch.silence.tick()
     for child in graph.dead():
         code = child.proc.returncode if child.proc is not None else None
         reason = child.exit_reason()
-        if code == 2:
+        if code == SETUP_EXIT:
             tail = child.log_tail(1) or reason
             raise RunError(f"node {child.name} refused to start: {tail}")
         if not restart or child.restarts >= MAX_RESTARTS:
@@ -317,6 +333,27 @@ def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = No
         print(f"node {child.name} died ({reason}); removed {len(removed)} files it left in "
               f"/dev/shm; restarted it ({child.restarts}/{MAX_RESTARTS})", file=log,
               flush=True)
+    if watch is None or hang_s is None or not restart:
+        return
+    for child in graph.children:
+        if child.proc is None or not child.alive():
+            continue
+        silent = watch.silent_for(child.proc.pid)
+        if silent is not None and silent > hang_s:
+            reason = f"unresponsive for {silent:.0f} s"
+        elif silent is None and time.monotonic() - child.started_at > STARTUP_TIMEOUT_S:
+            reason = f"unresponsive: no heartbeat {STARTUP_TIMEOUT_S:.0f} s after its start"
+        else:
+            continue
+        if child.restarts >= MAX_RESTARTS:
+            raise RunError(f"node {child.name} {reason} and was restarted {child.restarts} "
+                           f"times already:\n{child.log_tail()}")
+        pid = child.proc.pid
+        removed = graph.restart(child, reason)
+        watch.forget(pid)
+        print(f"node {child.name} {reason} (no heartbeat on /diagnostics); killed it; "
+              f"removed {len(removed)} files it left in /dev/shm; restarted it "
+              f"({child.restarts}/{MAX_RESTARTS})", file=log, flush=True)
 
 
 __all__ = ["RunError", "RunOptions", "StopRequested", "run_graph"]

@@ -86,4 +86,7 @@ TOPICS: tuple[Topic, ...] = (
     Topic("/roger/world_edit", "roger_interfaces/WorldEdit", "reliable", "user", "sim",
           "add / remove / move an object while running (also service /roger/edit_world)",
           per_cycle=False),
+    Topic("/diagnostics", "diagnostic_msgs/DiagnosticArray", "reliable", "every node",
+          "orchestrator", "heartbeat of a node started by its main (roger_common.liveness): "
+          "pid, host, longest gap; a node silent for 8 s is restarted", per_cycle=False),
 )

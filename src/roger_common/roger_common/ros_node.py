@@ -131,7 +131,10 @@ def spin_node(factory: Any, prog: str, args: list[str] | None = None,
     Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException) end the spin
     quietly. A setup failure (a bad world file, parameter or memory file: RogerError,
     ValueError, OSError) prints one line ``prog: message`` and exits with status 2, which
-    the orchestrator reads as "do not restart".
+    the orchestrator reads as "do not restart". An exception raised later, in a callback,
+    is logged with its traceback and exits with status 70, which the orchestrator restarts.
+    While it spins, the node publishes a heartbeat on ``/diagnostics`` (roger_common.liveness
+    has the details).
 
     Args:
         factory: Callable returning the node (called after ``rclpy.init``).
@@ -139,29 +142,6 @@ def spin_node(factory: Any, prog: str, args: list[str] | None = None,
         args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
         setup: Optional callable run once before ``rclpy.init``.
     """
-    import os
-    import sys
+    from roger_common import liveness
 
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-
-    from roger_common.dds import apply_dds_defaults
-    from roger_common.errors import RogerError
-
-    if setup is not None:
-        setup()
-    apply_dds_defaults(os.environ)
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = factory()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RogerError, ValueError, OSError) as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    liveness.spin_node(factory, prog, args, setup)
