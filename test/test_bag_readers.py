@@ -71,6 +71,9 @@ def fingerprint(value):
         return value
     if isinstance(value, str):
         return value
+    if isinstance(value, bytes) and len(value) == 1:
+        # A ``byte`` field (DiagnosticStatus.level): rclpy gives one byte, the readers an int.
+        return value[0]
     if isinstance(value, (bytes, bytearray, array.array, list, tuple, np.ndarray)):
         items = value.tolist() if isinstance(value, np.ndarray) else list(value)
         if len(items) <= FULL_ARRAY:

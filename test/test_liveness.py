@@ -79,7 +79,7 @@ def test_setup_error_exits_2_with_one_line(tmp_path) -> None:
 RAISING_NODE = textwrap.dedent("""
     import os, sys
     from rclpy.node import Node
-    from roger_common.conversions import spin_node
+    from roger_common.ros_node import spin_node
 
     class Raising(Node):
         def __init__(self):
