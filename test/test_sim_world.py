@@ -125,3 +125,25 @@ def test_good_file_loads(tmp_path: Path) -> None:
     world = load_world(_write(tmp_path, GOOD))
     assert [o.name for o in world.objects] == ["a", "b"]
     assert world.name == "tiny"
+
+
+def test_world_edit_errors_name_the_object_once() -> None:
+    from roger_sim.simulator import Simulator
+
+    sim = Simulator(load_world(WORLDS / "table1.yaml"))
+    try:
+        with pytest.raises(WorldFileError) as moved:
+            sim.move_object("obj01", (0.82, 0.22), 0.0)   # onto obj02
+        with pytest.raises(WorldFileError) as added:
+            sim.add_object(load_world(WORLDS / "table1.yaml").objects[1])  # a duplicate
+        with pytest.raises(WorldFileError) as outside:
+            object_from_dict({"name": "zz", "shape": "box", "position": [5.0, 0.6],
+                              "size": 0.1, "intensity": 90, "weight": 1.0},
+                             "world_edit", "object")
+    finally:
+        sim.close()
+    assert str(moved.value).startswith("move_object: object (obj01).position: overlaps")
+    assert str(moved.value).count("obj01") == 1
+    assert str(added.value).count("obj02") == 2  # "object (obj02).name: duplicate name 'obj02'"
+    assert str(outside.value).startswith("world_edit: object (zz).position: (5, 0.6) is out")
+    assert str(outside.value).count("zz") == 1

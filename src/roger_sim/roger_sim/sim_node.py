@@ -173,8 +173,7 @@ class SimNode(Node):
         """Apply one edit; returns what was done. Raises RogerError/KeyError/ValueError."""
         obj = edit.object
         if edit.op == WorldEdit.ADD:
-            spec = object_from_dict(conv.msg_to_object_dict(obj), "world_edit",
-                                    f"object {obj.name!r}")
+            spec = object_from_dict(conv.msg_to_object_dict(obj), "world_edit", "object")
             self.sim.add_object(spec)
             done = f"added {obj.name}"
         elif edit.op == WorldEdit.REMOVE:

@@ -422,10 +422,10 @@ class Simulator:
 
     def _validated(self, spec: ObjectSpec, source: str) -> ObjectSpec:
         entry = world_to_dict(WorldSpec(objects=(spec,)))["objects"][0]
-        where = f"object ({spec.name})"
-        checked = object_from_dict(entry, source, where)
+        # object_from_dict names the object after ``where``: "object (obj01).size".
+        checked = object_from_dict(entry, source, "object")
         others = [o for o in self.world.objects if o.name != spec.name]
-        check_overlap(others, checked, source, where)
+        check_overlap(others, checked, source, f"object ({spec.name})")
         return checked
 
     def add_object(self, spec: ObjectSpec) -> None:
