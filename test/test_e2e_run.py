@@ -52,6 +52,10 @@ def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_dom
         capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
     assert f"ROS_DOMAIN_ID={ros_domain}" in proc.stdout
+    # The printed hint is the whole environment a ros2 CLI needs to see the run.
+    hint = next(ln for ln in proc.stdout.splitlines() if "watch with:" in ln)
+    assert f"ROS_DOMAIN_ID={ros_domain} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST" in hint
+    assert "AMENT_PREFIX_PATH=" in hint
     metrics = json.loads((out / "metrics.json").read_text())
     assert METRIC_KEYS <= set(metrics)
     assert metrics["cycles"] == 8 and metrics["policy"] == policy

@@ -200,8 +200,8 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     budget = opt.budget()
     timeout = opt.timeout_s if opt.timeout_s is not None else 120.0 + 3.0 * budget
     print(f"roger run: world {opt.world} ({len(world.objects)} objects), policy {opt.policy}, "
-          f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id} (watch with: ROS_DOMAIN_ID={domain_id} "
-          f"ros2 topic echo /roger/metrics), output {out}", file=log, flush=True)
+          f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id}, output {out}\n"
+          f"  watch with: {watch_command(env)}", file=log, flush=True)
     # Taken before this process joins the graph, so that the files its own participant
     # creates count as the run's (removed at the end if a killed peer left them in use).
     shm_before = shm_files()
@@ -298,6 +298,13 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         with open(out / "run_status.json", "w") as fh:
             json.dump(metrics_status, fh, indent=2)
     return metrics
+
+
+def watch_command(env: dict[str, str]) -> str:
+    """The ros2 CLI line that sees this run: its domain, discovery range, messages."""
+    return (f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} ROS_AUTOMATIC_DISCOVERY_RANGE="
+            f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')} AMENT_PREFIX_PATH="
+            f"{sys.prefix}:$AMENT_PREFIX_PATH ros2 topic echo /roger/metrics")
 
 
 def _complete(recorder: RunRecorder, stable_cycles: int) -> bool:
