@@ -23,15 +23,17 @@ GAZES = (HOME, (0.7, 0.3, 0.0), (0.7, -0.3, 0.0))
 MIN_PIXELS = 150
 WORLD_NAMES = ("two_rows", "shapes", "table1", "touching")
 #: ROI position (x, y) of an object fully in view against its footprint centre, metres.
-POSITION_TOLERANCE = 0.05
+POSITION_TOLERANCE = 0.03
 #: The same object's ROI position from two gazes, metres.
-STABILITY_TOLERANCE = 0.05
+STABILITY_TOLERANCE = 0.02
 #: Known gaps, kept strict so that a fix shows up (see docs/perception.md, "Limits").
 KNOWN_POSITION_FAILURES = {
-    "table1": "0.30 m boxes: the centre of the visible surface lies up to 5.7 cm in front",
+    "table1": "0.30 m boxes seen nearly face on: both outer edges are front corners and the "
+              "visible surface lies in front, 3.1 cm short",
 }
 KNOWN_STABILITY_FAILURES = {
-    "table1": "0.30 m boxes: the visible surface changes between gazes, 5.8 cm",
+    "table1": "0.30 m boxes: a face seen edge on from one gaze and not from the other moves "
+              "the estimate by up to 3 cm",
 }
 
 
@@ -117,7 +119,7 @@ def _positions(views, world: str) -> list[tuple[int, str, np.ndarray]]:
 
 
 @pytest.mark.parametrize("world", [_mark(w, KNOWN_POSITION_FAILURES) for w in WORLD_NAMES])
-def test_positions_of_objects_fully_in_view_are_within_5_cm_of_their_footprint(
+def test_positions_of_objects_fully_in_view_are_within_3_cm_of_their_footprint(
         views, world: str) -> None:
     # x, y against the footprint centre; z is the height of the fixation point (between the
     # ground and the object's top), not the centre's height.
@@ -131,7 +133,7 @@ def test_positions_of_objects_fully_in_view_are_within_5_cm_of_their_footprint(
 
 
 @pytest.mark.parametrize("world", [_mark(w, KNOWN_STABILITY_FAILURES) for w in WORLD_NAMES])
-def test_position_of_an_object_moves_less_than_5_cm_between_gazes(views, world: str) -> None:
+def test_position_of_an_object_moves_less_than_2_cm_between_gazes(views, world: str) -> None:
     seen: dict[str, list[np.ndarray]] = {}
     for _, name, p in _positions(views, world):
         seen.setdefault(name, []).append(p[:2])
