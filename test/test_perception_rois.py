@@ -14,8 +14,15 @@ from perception_synth import CENTRE_GAZE, SPREAD, Shape, make_frame, nearest_obj
 from roger_common.errors import MessageError
 from roger_common.types import HapticReading
 from roger_perception.config import PerceptionConfig
+from roger_perception.grouping import absorb_slivers, adjacency, group_fragments
 from roger_perception.perception import Perception
-from roger_perception.segmentation import contour_samples, segment_retina
+from roger_perception.plane_sweep import SampledCosts
+from roger_perception.segmentation import (
+    contour_samples,
+    ground_notches,
+    segment_retina,
+    split_at_notches,
+)
 
 
 def test_ground_alone_gives_no_roi() -> None:
@@ -175,3 +182,105 @@ def test_a_frame_that_does_not_fit_its_camera_is_rejected() -> None:
     nan[3, 3] = np.nan
     with pytest.raises(MessageError, match="right"):
         Perception().process(dataclasses.replace(frame, right=nan))
+
+
+# -- segmentation by convexity (segmentation.ground_notches, grouping, roi_finder) ---------
+
+def _disc(shape: tuple[int, int], centre: tuple[int, int], radius: int) -> np.ndarray:
+    rr, cc = np.indices(shape)
+    return (rr - centre[0]) ** 2 + (cc - centre[1]) ** 2 <= radius ** 2
+
+
+def test_a_convex_region_holds_no_notch_and_two_overlapping_discs_do() -> None:
+    ground = np.ones((40, 60), bool)
+    one = _disc(ground.shape, (20, 20), 9)
+    assert ground_notches(one, ground & ~one, deeper_than=1.5) == []
+    two = one | _disc(ground.shape, (24, 36), 9)
+    notches = ground_notches(two, ground & ~two, deeper_than=1.5)
+    assert len(notches) == 2  # the corners where the two outlines meet, above and below
+    assert all(depth > 1.5 for depth, _ in notches)
+
+
+def test_a_notch_must_open_onto_the_hull_and_touch_both_parts() -> None:
+    ground = np.ones((40, 40), bool)
+    square = np.zeros((40, 40), bool)
+    square[5:35, 5:35] = True
+    holed = square.copy()
+    holed[18:22, 18:22] = False  # an enclosed hole (a dark spot) is no notch
+    assert ground_notches(holed, ground & ~holed) == []
+    left, right = square.copy(), square.copy()
+    left[:, 20:] = False
+    right[:, :20] = False
+    right[5:12, 25:35] = False  # a bite out of the right part, away from the left one
+    both = left | right
+    assert ground_notches(both, ground & ~both, deeper_than=1.5)
+    assert ground_notches(both, ground & ~both, (left, right), deeper_than=1.5) == []
+
+
+def test_faces_of_one_convex_object_join_and_overlapping_objects_stay_apart() -> None:
+    frag = np.zeros((40, 70), np.int32)
+    frag[5:20, 5:30] = 1  # the top face of a box
+    frag[20:35, 5:30] = 2  # its front face
+    disc_a, disc_b = _disc(frag.shape, (20, 45), 9), _disc(frag.shape, (26, 58), 9)
+    frag[disc_a] = 3
+    frag[disc_b & ~disc_a] = 4  # a second disc partly hidden by the first
+    owner = group_fragments(frag, frag == 0, adjacency(frag), min_pixels=12, notch_px=1.5)
+    assert owner[1] == owner[2]
+    assert owner[3] != owner[4]
+    assert owner[2] != owner[3]
+
+
+def test_slivers_join_the_neighbour_they_share_most_boundary_with() -> None:
+    frag = np.zeros((20, 30), np.int32)
+    frag[2:18, 2:14] = 1
+    frag[2:18, 16:28] = 2
+    frag[5:9, 14] = 3   # 4 px beside fragment 1, 2 of them beside fragment 2 too
+    frag[5:7, 15] = 3
+    frag[9, 14] = 4     # a sliver that touches only the sliver 3 (and 1)
+    frag[1, 5:8] = 5    # a rim sliver on fragment 1
+    out = absorb_slivers(frag, min_pixels=12)
+    assert set(np.unique(out)) == {0, 1, 2}
+    assert out[1, 6] == out[5, 14] == out[9, 14] == 1
+    assert (out[frag == 2] == 2).all()
+
+
+def test_a_fragment_holding_two_objects_of_one_grey_is_cut_at_their_notches() -> None:
+    image = np.full((40, 70), 0.02, np.float32)
+    two = _disc(image.shape, (20, 24), 10) | _disc(image.shape, (24, 42), 10)
+    image[two] = 0.4
+    labels = two.astype(np.int32)
+    cut = split_at_notches(labels, image, ~two, 0.02, notch_px=1.5, min_pixels=12)
+    parts = [int(v) for v in np.unique(cut) if v > 0]
+    assert len(parts) == 2
+    left, right = (cut == parts[0]), (cut == parts[1])
+    assert left[20, 16] != left[24, 50] and right[20, 16] != right[24, 50]
+
+
+def test_sampled_costs_average_regions_and_windows() -> None:
+    rows, cols = np.array([0, 0, 1, 3]), np.array([0, 2, 1, 3])
+    costs = np.array([[1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 0.0, 8.0]], np.float32)
+    sampled = SampledCosts(rows, cols, costs, (4, 4))
+    mask = np.zeros((2, 3), bool)
+    mask[0, :] = True
+    curve, n = sampled.curve(mask, 0, 0)
+    assert n == 2 and np.allclose(curve, [1.5, 0.0])
+    means, counts = sampled.window_means(0, (0, 0, 2, 2), 1)
+    assert counts[0, 0] == 2 and means[0, 0] == pytest.approx(2.0)  # samples (0,0), (1,1)
+    assert counts[1, 1] == 3 and means[1, 1] == pytest.approx(2.0)
+
+
+def test_a_sphere_before_a_box_of_about_its_grey_gives_two_pure_rois() -> None:
+    # The sphere's top hides the bottom of the box's front: a T-junction at each side.
+    objects = [Shape("cube", 0.85, 0.0, 0.2, 80.0, yaw=0.3),
+               Shape("sphere", 0.62, 0.03, 0.12, 85.0)]
+    for seed in (21, 22):
+        frame = make_frame(objects, gaze=(0.75, 0.0, 0.05), seed=seed)
+        perception = Perception()
+        rois = perception.process(frame)
+        assert len(rois) == 2
+        for roi in rois:
+            truth = frame.left_labels[perception.last_roi_labels == roi.roi_id + 1]
+            shares = np.bincount(truth[truth >= 0], minlength=2) / truth.size
+            assert shares.max() >= 0.85 and shares.min() < 0.15, (seed, shares)
+        near = min(rois, key=lambda r: r.position[0])
+        assert np.hypot(near.position[0] - 0.62, near.position[1] - 0.03) < 0.03

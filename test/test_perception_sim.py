@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 
+import cv2
 import numpy as np
 import pytest
 from conftest import WORLDS
@@ -21,9 +22,19 @@ HOME = (0.9, 0.0, 0.0)
 GAZES = (HOME, (0.7, 0.3, 0.0), (0.7, -0.3, 0.0))
 MIN_PIXELS = 150
 WORLD_NAMES = ("two_rows", "shapes", "table1", "touching")
+#: ROI position (x, y) of an object fully in view against its footprint centre, metres.
+POSITION_TOLERANCE = 0.03
+#: The same object's ROI position from two gazes, metres.
+STABILITY_TOLERANCE = 0.02
 #: Known gaps, kept strict so that a fix shows up (see docs/perception.md, "Limits").
-KNOWN_SPLIT_FAILURES = {"touching"}
-KNOWN_POSITION_FAILURES = {"table1", "touching"}
+KNOWN_POSITION_FAILURES = {
+    "table1": "0.30 m boxes seen nearly face on: both outer edges are front corners and the "
+              "visible surface lies in front, 3.1 cm short",
+}
+KNOWN_STABILITY_FAILURES = {
+    "table1": "0.30 m boxes: a face seen edge on from one gaze and not from the other moves "
+              "the estimate by up to 3 cm",
+}
 
 
 def _views(world: str) -> tuple[dict[str, tuple[float, ...]], list[StereoFrame]]:
@@ -49,6 +60,7 @@ def _scored(frame: StereoFrame) -> list[tuple[object, str, float, bool]]:
         share = counts.max() / truth.size
         u0, v0, u1, v1 = roi.bbox
         cut = u0 == 0 or v0 == 0 or u1 == frame.camera.width or v1 == frame.camera.height
+        assert roi.cut == cut, (roi.roi_id, roi.bbox, roi.cut)
         out.append((roi, frame.label_names[int(counts.argmax())], float(share), cut))
     return out
 
@@ -59,14 +71,31 @@ def _visible(frame: StereoFrame) -> set[str]:
             and (frame.right_labels == i).sum() >= MIN_PIXELS}
 
 
-def _mark(world: str, known: set[str], why: str) -> object:
-    return pytest.param(world, marks=pytest.mark.xfail(strict=True, reason=why)) if (
+def _fully_in_view(frame: StereoFrame, poses: dict[str, tuple[float, ...]], name: str) -> bool:
+    """The object touches no edge of the left retina and nothing nearer the eye hides any of
+    it: every object next to it in the label image stands farther away (ground truth, for
+    scoring only)."""
+    labels = frame.left_labels
+    k = frame.label_names.index(name)
+    own = labels == k
+    if own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any():
+        return False
+    eye = np.asarray(frame.left_pose.position)
+    near = cv2.dilate(own.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    for j in np.unique(labels[near & (labels >= 0) & ~own]):
+        other = frame.label_names[int(j)]
+        if np.linalg.norm(np.asarray(poses[other][:3]) - eye) < np.linalg.norm(
+                np.asarray(poses[name][:3]) - eye):
+            return False
+    return True
+
+
+def _mark(world: str, known: dict[str, str]) -> object:
+    return pytest.param(world, marks=pytest.mark.xfail(strict=True, reason=known[world])) if (
         world in known) else world
 
 
-@pytest.mark.parametrize("world", [_mark(w, KNOWN_SPLIT_FAILURES, "front sphere and back box "
-                                         "are joined: their visible surfaces are < 0.22 m "
-                                         "apart") for w in WORLD_NAMES])
+@pytest.mark.parametrize("world", WORLD_NAMES)
 def test_every_visible_object_yields_exactly_one_pure_roi(views, world: str) -> None:
     _, frames = views[world]
     for gaze, frame in zip(GAZES, frames, strict=True):
@@ -78,36 +107,42 @@ def test_every_visible_object_yields_exactly_one_pure_roi(views, world: str) -> 
             assert share >= 0.7, (world, gaze, roi.roi_id, name, share)
 
 
-@pytest.mark.parametrize("world", [_mark(w, KNOWN_POSITION_FAILURES, "large boxes: the "
-                                         "visible-surface centre is up to 6.5 cm off")
-                                   for w in WORLD_NAMES])
-def test_positions_of_uncut_rois_are_within_5_cm_of_the_object(views, world: str) -> None:
+def _positions(views, world: str) -> list[tuple[int, str, np.ndarray]]:
+    """(gaze, object, ROI position) of every object fully in view, its ROI mostly on it."""
     poses, frames = views[world]
-    for gaze, frame in zip(GAZES, frames, strict=True):
-        for roi, name, _, cut in _scored(frame):
-            if cut:
-                continue
-            x, y = poses[name][:2]
-            err = float(np.hypot(roi.position[0] - x, roi.position[1] - y))
-            assert err < 0.05, (world, gaze, name, err)
+    out = []
+    for g, frame in enumerate(frames):
+        for roi, name, share, cut in _scored(frame):
+            if not cut and share >= 0.7 and _fully_in_view(frame, poses, name):
+                out.append((g, name, np.asarray(roi.position)))
+    return out
 
 
-@pytest.mark.parametrize("world", ["two_rows", "shapes", pytest.param("table1", marks=(
-    pytest.mark.xfail(strict=True, reason="0.30 m boxes: depth of one fronto-parallel "
-                      "plane moves ~7 cm between gazes"),))])
-def test_position_of_a_roi_moves_less_than_5_cm_between_gazes(views, world: str) -> None:
-    _, frames = views[world]
+@pytest.mark.parametrize("world", [_mark(w, KNOWN_POSITION_FAILURES) for w in WORLD_NAMES])
+def test_positions_of_objects_fully_in_view_are_within_3_cm_of_their_footprint(
+        views, world: str) -> None:
+    # x, y against the footprint centre; z is the height of the fixation point (between the
+    # ground and the object's top), not the centre's height.
+    poses, _ = views[world]
+    found = _positions(views, world)
+    assert found, world
+    for g, name, p in found:
+        x, y, z = poses[name][:3]
+        assert np.hypot(p[0] - x, p[1] - y) < POSITION_TOLERANCE, (world, g, name, p)
+        assert -0.01 < p[2] < 2.0 * z + 0.01, (world, g, name, p[2], z)
+
+
+@pytest.mark.parametrize("world", [_mark(w, KNOWN_STABILITY_FAILURES) for w in WORLD_NAMES])
+def test_position_of_an_object_moves_less_than_2_cm_between_gazes(views, world: str) -> None:
     seen: dict[str, list[np.ndarray]] = {}
-    for frame in frames:
-        for roi, name, _, cut in _scored(frame):
-            if not cut:
-                seen.setdefault(name, []).append(np.asarray(roi.position[:2]))
+    for _, name, p in _positions(views, world):
+        seen.setdefault(name, []).append(p[:2])
     pairs = 0
     for name, positions in seen.items():
         for a, b in itertools.combinations(positions, 2):
             pairs += 1
-            assert np.hypot(*(a - b)) < 0.05, (world, name, a, b)
-    assert pairs >= 2
+            assert np.hypot(*(a - b)) < STABILITY_TOLERANCE, (world, name, a, b)
+    assert pairs >= 1, world
 
 
 @pytest.fixture(scope="module")

@@ -200,6 +200,9 @@ class Roi:
         motion: Visual motion since the previous frame, [0, 1].
         tactile: Tactile response (1 when a hand touches it), [0, 1].
         mapped: Mapping status of the spatial-map entry at this position.
+        cut: True when the ROI touches the edge of the left retina: part of the object
+            lies outside the view, so its position (and size) are estimates that move as
+            the gaze moves; trust it less than an uncut ROI's.
     """
 
     roi_id: int
@@ -213,6 +216,7 @@ class Roi:
     motion: float = 0.0
     tactile: float = 0.0
     mapped: bool = False
+    cut: bool = False
 
 
 @dataclass(frozen=True)

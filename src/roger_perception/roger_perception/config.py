@@ -57,11 +57,11 @@ class PerceptionConfig:
         match_cost_trunc: Truncation of the per-pixel matching cost |L - R| (intensity).
         occlusion_band_px: Pixels this close to another fragment (or ROI) are left out of
             its depth estimate (occlusion changes them between the eyes).
-        min_depth_pixels: A fragment with fewer usable pixels has no reliable depth.
-        min_depth_rise: A fragment whose mean cost rises less than this two hypotheses
-            away from its minimum has no reliable depth (ambiguous match).
-        merge_distance_m: Touching fragments whose 3-D centres lie within this ground
-            distance are one object.
+        min_depth_pixels: An object with fewer samples away from other objects has its
+            depth measured on all its samples; the leftmost or rightmost edge of an
+            object (its position) needs half this many to be measured.
+        min_depth_rise: An object's edge whose mean cost rises less than this two
+            hypotheses away from its minimum is ambiguous and not used for its position.
         max_match_cost: A ROI whose best mean matching cost exceeds this is not seen by
             the right eye (occluded or out of its view) and is dropped.
         min_roi_pixels: Smaller connected regions are noise, not ROIs.
@@ -90,6 +90,12 @@ class PerceptionConfig:
         min_stereo_samples: S^(k) is unknown when fewer of the M samples were matched
             (a sample whose disparity search ends at its range, or whose relief exceeds
             the object's size, is a failed match).
+        depth_sigmas: Margin, in standard errors of the robot's own matching noise, by
+            which a pixel's window must match one of two depths better than the other
+            to be taken for that depth (where a fragment holding two objects is cut).
+        notch_px: Deepest concave notch of ground (pixels, from the convex hull) the
+            union of two fragments of one object may hold: the image of a convex shape
+            is convex up to digitisation.
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -114,7 +120,6 @@ class PerceptionConfig:
     occlusion_band_px: int = 3
     min_depth_pixels: int = 10
     min_depth_rise: float = 0.002
-    merge_distance_m: float = 0.22
     max_match_cost: float = 0.04
     min_roi_pixels: int = 12
     border_margin_px: int = 0
@@ -133,6 +138,8 @@ class PerceptionConfig:
     cv_threads: int = 1
     min_rim_share: float = 0.5
     min_stereo_samples: int = 8
+    depth_sigmas: float = 3.0
+    notch_px: float = 1.5
 
     def __post_init__(self) -> None:
         sig = tuple(self.log_sigmas)
@@ -173,7 +180,8 @@ class PerceptionConfig:
             "mapped_radius_m",
             "fg_threshold", "epipolar_tol_px", "max_ray_gap_m", "max_intensity_diff",
             "size_norm", "motion_norm_m", "grad_threshold", "sweep_step_px",
-            "match_cost_trunc", "merge_distance_m", "max_match_cost",
+            "match_cost_trunc", "max_match_cost", "depth_sigmas",
+            "notch_px",
         )
         for name in positive:
             value = getattr(self, name)

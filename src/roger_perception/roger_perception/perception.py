@@ -201,7 +201,7 @@ class Perception:
                 roi_id=roi_id, bbox=bl.bbox, position=position, features=feats,
                 known=known, activation=activation, retinal_size=retinal_size,
                 mean_intensity=bl.mean_intensity, motion=motion, tactile=tactile,
-                mapped=mapped,
+                mapped=mapped, cut=obj.cut,
             ))
             tc = time.perf_counter()
             timings["features"] += tb - ta

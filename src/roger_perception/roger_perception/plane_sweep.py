@@ -18,6 +18,7 @@ cost the truncation value, so a region cannot win by sliding out of the other ey
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -170,3 +171,71 @@ def best_depths(curves: np.ndarray, inverse_depths: np.ndarray
     rise = np.minimum(curves[np.maximum(best - 2, 0), cols],
                       curves[np.minimum(best + 2, j - 1), cols]) - c0
     return 1.0 / rho, c0, rise
+
+
+#: sd of the truncated absolute difference of two equal intensities with Gaussian noise,
+#: relative to its mean: sqrt(pi / 2 - 1). It turns a region's mean residual cost at its
+#: best depth into the spread of one pixel's cost (the robot's own matching noise).
+COST_SD_PER_MEAN = float(np.sqrt(np.pi / 2.0 - 1.0))
+
+
+@dataclass
+class SampledCosts:
+    """The matching costs of the sampled left pixels, for regions and small windows.
+
+    Attributes:
+        rows, cols: (N,) the sampled pixels.
+        costs: (J, N) their costs for every hypothesis (``PlaneSweep.costs``).
+        shape: The retina's (H, W).
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    costs: np.ndarray
+    shape: tuple[int, int]
+    _index: np.ndarray | None = field(default=None, repr=False)
+
+    def index(self) -> np.ndarray:
+        """(H, W) index of each pixel's sample, -1 where there is none."""
+        if self._index is None:
+            self._index = np.full(self.shape, -1, np.int64)
+            self._index[self.rows, self.cols] = np.arange(self.rows.size)
+        return self._index
+
+    def curve(self, mask: np.ndarray, y0: int = 0, x0: int = 0) -> tuple[np.ndarray, int]:
+        """Mean cost curve (J,) over the samples inside ``mask`` (placed at row y0, col
+        x0 of the retina) and how many samples that is."""
+        h, w = mask.shape
+        idx = self.index()[y0:y0 + h, x0:x0 + w][mask]
+        idx = idx[idx >= 0]
+        if idx.size == 0:
+            return np.full(self.costs.shape[0], np.inf), 0
+        return self.costs[:, idx].mean(axis=1), int(idx.size)
+
+    def window_means(self, plane: int, box: tuple[int, int, int, int], radius: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Mean cost at one hypothesis over the samples of each pixel's square window.
+
+        Args:
+            plane: The hypothesis.
+            box: (y0, x0, y1, x1) of the pixels wanted, exclusive ends.
+            radius: Half-width of the window, pixels.
+
+        Returns:
+            (means, counts), each (y1 - y0, x1 - x0); means are 0 where counts are 0.
+        """
+        y0, x0, y1, x1 = box
+        h, w = self.shape
+        ya, xa = max(y0 - radius, 0), max(x0 - radius, 0)
+        yb, xb = min(y1 + radius, h), min(x1 + radius, w)
+        idx = self.index()[ya:yb, xa:xb]
+        have = idx >= 0
+        val = np.zeros(idx.shape, np.float32)
+        val[have] = self.costs[plane, idx[have]]
+        size = (2 * radius + 1, 2 * radius + 1)
+        sums = cv2.boxFilter(val, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+        counts = cv2.boxFilter(have.astype(np.float32), -1, size, normalize=False,
+                               borderType=cv2.BORDER_CONSTANT)
+        sl = (slice(y0 - ya, y0 - ya + (y1 - y0)), slice(x0 - xa, x0 - xa + (x1 - x0)))
+        cnt = counts[sl]
+        return np.where(cnt > 0, sums[sl] / np.maximum(cnt, 1.0), 0.0), cnt
