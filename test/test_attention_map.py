@@ -258,3 +258,22 @@ def test_a_stray_position_does_not_move_an_entry_but_a_repeated_one_does() -> No
     assert ch.moved == (eid,) and not m.get(eid).mapped
     assert m.get(eid).position == pytest.approx((0.63, 0.0, 0.05))
 
+
+def test_a_place_where_fixation_found_nothing_waits_for_its_interest() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0, activation=0.9), at(0.5, 0.4, activation=0.2)], now=float(t))
+    lost, other = (e.entry_id for e in m)
+    m.forget(lost)                                   # fixated: nothing there
+    for t in (2, 3):
+        m.update([at(0.52, 0.0, activation=0.9), at(0.5, 0.4, activation=0.2)],
+                 now=float(t))
+    (again,) = [e.entry_id for e in m if e.entry_id != other]
+    assert m.get(again).inhibited and not m.get(other).inhibited
+    assert m.select_focus() == other                 # the lower activation, not inhibited
+    m.set_mapped(other, 1)
+    m.focus(other, now=6.0)
+    m.advance(10.0)                                  # interests: again 0.7, other 0.4
+    assert m.select_focus() == again                 # visited by its interest
+    m.set_mapped(again, 2)
+    assert not m.get(again).inhibited and m.lost_places == []
