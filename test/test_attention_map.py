@@ -277,3 +277,24 @@ def test_a_place_where_fixation_found_nothing_waits_for_its_interest() -> None:
     assert m.select_focus() == again                 # visited by its interest
     m.set_mapped(again, 2)
     assert not m.get(again).inhibited and m.lost_places == []
+
+
+def test_a_place_seen_once_is_looked_at_again_when_nothing_else_is_unmapped() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0), at(0.5, 0.4)], now=float(t))
+    a, b = (e.entry_id for e in m)
+    m.update([at(0.5, 0.0), at(0.5, 0.4), at(0.4, -0.9)], now=2.0)  # the far edge, once
+    m.update([at(0.5, 0.0), at(0.5, 0.4)], now=3.0, visible=lambda p: p[1] > -0.5)
+    assert len(m.candidates) == 1 and len(m) == 2                  # out of view: it waits
+    assert m.select_focus() == a                                   # unmapped entries first
+    m.set_mapped(a, 1)
+    m.set_mapped(b, 2)
+    m.focus(a, now=3.0)
+    m.focus(b, now=3.0)
+    m.advance(5.0)                                                 # candidate 0.3, a b 0.2
+    seen_once = m.select_focus()
+    assert seen_once not in (a, b) and m.candidates == []
+    entry = m.get(seen_once)
+    assert entry.position[:2] == pytest.approx((0.4, -0.9)) and not entry.mapped
+    assert entry.interest == pytest.approx(0.3)

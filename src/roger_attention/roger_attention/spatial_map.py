@@ -98,12 +98,14 @@ class Candidate:
         roi: Latest ROI seen there.
         observations: Agreeing observations so far (one per frame).
         last_frame: Number of the last observation that saw it.
+        interest: Grows with simulated time from its first sighting, as an entry's does.
     """
 
     position: Position
     roi: Roi
     observations: int
     last_frame: int
+    interest: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -175,6 +177,8 @@ class SpatialMap:
             grow = self.config.interest_rate * (now - self.time)
             for entry in self.entries.values():
                 entry.interest += grow
+            for candidate in self.candidates:
+                candidate.interest += grow
         if self.time is None or now > self.time:
             self.time = now
 
@@ -452,21 +456,26 @@ class SpatialMap:
         """The attention shift's winner-take-all (section 2 and section 5).
 
         While some entry is unmapped (and not ``inhibited``), the unmapped entry of largest
-        pre-attentive activation wins; otherwise the entry of largest interest, which
-        keeps the robot vigilant. The current focus ``exclude`` only wins when it is the
-        only entry. Ties go to the oldest entry.
+        pre-attentive activation wins; otherwise the entry or candidate of largest interest,
+        which keeps the robot vigilant. A candidate that wins (a place seen once, from a
+        look that no later look covered) is settled as an entry then, so that the shift
+        looks at it again. The current focus ``exclude`` only wins when it is the only
+        entry. Ties go to the oldest entry.
 
         Returns:
-            The winning entry id, or None for an empty map.
+            The winning entry id, or None for an empty map without candidates.
         """
         rivals = [e for e in self.entries.values() if e.entry_id != exclude]
         if not rivals:
             rivals = list(self.entries.values())
-        if not rivals:
-            return None
         unmapped = [e for e in rivals if not e.mapped and not e.inhibited]
         if unmapped:
-            best = max(unmapped, key=lambda e: (e.activation, -e.entry_id))
-        else:
-            best = max(rivals, key=lambda e: (e.interest, -e.entry_id))
-        return best.entry_id
+            return max(unmapped, key=lambda e: (e.activation, -e.entry_id)).entry_id
+        best = max(rivals, key=lambda e: (e.interest, -e.entry_id), default=None)
+        waiting = max(self.candidates, key=lambda c: c.interest, default=None)
+        if waiting is not None and (best is None or waiting.interest > best.interest):
+            self.candidates.remove(waiting)
+            entry_id = self._settle(waiting.roi, self.time or 0.0)
+            self.entries[entry_id].interest = waiting.interest
+            return entry_id
+        return None if best is None else best.entry_id
