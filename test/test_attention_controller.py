@@ -31,7 +31,8 @@ class Driver:
         self.ctl, self.world, self.memory = ctl, world, memory
         self.now = 0.0
         self.log: list[tuple[CyclePlan, CycleRecord]] = []
-        ctl.observe(world.rois(), self.now, world.visible)
+        for _ in range(ctl.config.spatial_map.settle_observations):  # the initial looks
+            ctl.observe(world.rois(), self.now, world.visible)
 
     def cycle(self) -> tuple[CyclePlan, CycleRecord]:
         plan = self.ctl.begin_cycle(self.now)
@@ -196,7 +197,8 @@ def test_protocol_misuse_raises() -> None:
     ctl = make_ctl()
     with pytest.raises(RuntimeError):
         ctl.end_cycle(None, 0.0)
-    ctl.observe(FakeWorld(three_objects()).rois(), 0.0)
+    for _ in range(2):                 # an entry settles after two agreeing looks
+        ctl.observe(FakeWorld(three_objects()).rois(), 0.0)
     ctl.begin_cycle(0.0)
     with pytest.raises(RuntimeError):
         ctl.begin_cycle(0.0)

@@ -6,6 +6,8 @@ and the winner-take-all of the attention shift.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -14,8 +16,10 @@ from roger_attention.spatial_map import SpatialMap
 from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_DIM, WEIGHT_INDEX, Roi
 
+#: Every ROI settles at once (settle_observations=1): the tests of association, interest
+#: and winner-take-all; the settling itself is tested with the defaults further down.
 CFG = SpatialMapConfig(association_radius=0.1, moved_threshold=0.04, vanish_frames=2,
-                       interest_rate=0.5)
+                       interest_rate=0.5, settle_observations=1)
 
 
 def roi(x: float, y: float, activation: float = 0.5, value: float = 0.3,
@@ -145,8 +149,149 @@ def test_features_accumulate_within_a_focus() -> None:
     [({"association_radius": 0.0}, "association_radius"),
      ({"moved_threshold": 0.5}, "moved_threshold"),
      ({"vanish_frames": 0}, "vanish_frames"),
-     ({"interest_rate": -1.0}, "interest_rate")],
+     ({"interest_rate": -1.0}, "interest_rate"),
+     ({"settle_observations": 0}, "settle_observations"),
+     ({"jitter_quantile": 1.5}, "jitter_quantile"),
+     ({"jitter_prior": 0.5}, "jitter_prior"),
+     ({"jitter_samples": 0}, "jitter_samples"),
+     ({"max_height_per_width": 0.0}, "max_height_per_width")],
 )
 def test_config_rejects(kwargs: dict[str, float], field: str) -> None:
     with pytest.raises(ConfigError, match=field):
         SpatialMapConfig(**kwargs)
+
+
+# -- the map holds only what is there (issue 15, item 5) -----------------------------------
+
+SETTLE = SpatialMapConfig()   # the defaults: two agreeing observations settle an entry
+
+
+def at(x: float, y: float, z: float = 0.05, width: float = 0.1,
+       activation: float = 0.5) -> Roi:
+    """A ROI at (x, y, z) whose measured size (``Roi.size_m``) is ``width`` metres."""
+    return dataclasses.replace(roi(x, y, activation), position=(x, y, z), size_m=width)
+
+
+def test_a_roi_settles_only_once_a_second_observation_agrees() -> None:
+    m = SpatialMap(SETTLE)
+    ch = m.update([at(0.5, 0.0), at(0.5, 0.4)], now=0.0)
+    assert len(m) == 0 and ch.new == () and ch.candidates == (0, 1)
+    ch = m.update([at(0.51, 0.0), at(0.5, 0.49)], now=1.0)          # 1 cm; 9 cm off
+    assert len(ch.new) == 1 and len(m) == 1 and ch.candidates == (1,)
+    (entry,) = list(m)
+    assert entry.position == pytest.approx((0.51, 0.0, 0.05)) and entry.interest == 0.0
+    ch = m.update([at(0.5, 0.49)], now=2.0)                         # agrees with its restart
+    assert len(ch.new) == 1 and len(m) == 2
+
+
+def test_a_candidate_in_view_and_not_seen_again_is_dropped() -> None:
+    m = SpatialMap(SETTLE)
+    m.update([at(0.5, 0.0), at(0.5, 0.4)], now=0.0)
+    m.update([], now=1.0, visible=lambda p: p[1] < 0.2)             # (0.5, 0.4) out of view
+    assert [c.position[:2] for c in m.candidates] == [pytest.approx((0.5, 0.4))]
+    ch = m.update([at(0.5, 0.0)], now=2.0, visible=lambda p: True)
+    assert ch.new == () and ch.candidates == (0,) and len(m) == 0    # a new start
+
+
+def test_near_the_retina_edge_a_roi_keeps_its_entry_but_settles_nothing() -> None:
+    m = SpatialMap(SETTLE)
+    edge = lambda p: p[1] < 0.3                                       # noqa: E731
+    for t in range(3):
+        m.update([at(0.5, 0.0), at(0.5, 0.35)], now=float(t), visible=edge)
+    assert [e.position[:2] for e in m] == [pytest.approx((0.5, 0.0))]
+    (eid,) = [e.entry_id for e in m]
+    ch = m.update([at(0.5, 0.01)], now=3.0, visible=lambda p: False)
+    assert ch.associated == (eid,)
+
+
+@pytest.mark.parametrize(("z", "width", "why"), [
+    (-0.2, 0.1, "under the ground"),
+    (0.7, 0.4, "higher than any object of a world file"),
+    (0.45, 0.05, "a 5 cm wide region 45 cm above the ground: a false stereo match"),
+])
+def test_impossible_places_never_enter_the_map(z: float, width: float, why: str) -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(3):
+        ch = m.update([at(0.5, 0.0, z, width), at(0.6, 0.3)], now=float(t))
+        assert ch.impossible == (0,), why
+    assert [e.position[:2] for e in m] == [pytest.approx((0.6, 0.3))]
+
+
+def test_possible_places_of_real_objects() -> None:
+    m = SpatialMap(SETTLE)
+    assert m.possible(at(0.5, 0.0, -0.03))          # jitter below the ground
+    assert m.possible(at(0.5, 0.0, 0.25, 0.5))      # the centre of a 0.5 m box
+    assert m.possible(at(0.5, 0.0, 0.09, 0.05))     # a prism seen along its 5 cm depth
+    assert not m.possible(at(0.5, 0.0, float("nan")))
+
+
+def test_the_consistency_radius_is_the_robots_own_measured_jitter() -> None:
+    m = SpatialMap(dataclasses.replace(SETTLE, jitter_samples=10))
+    assert m.consistency_radius() == SETTLE.jitter_prior
+    rng = np.random.default_rng(0)
+    truth = [(0.5, y, 0.05) for y in (-0.4, -0.2, 0.0, 0.2, 0.4)]
+    for t in range(12):
+        m.update([at(x + rng.normal(0, 0.01), y + rng.normal(0, 0.01)) for x, y, _ in truth],
+                 now=float(t))
+    assert len(m) == 5 and len(m.jitter) >= 10
+    radius = m.consistency_radius()
+    assert radius == pytest.approx(np.quantile(list(m.jitter), SETTLE.jitter_quantile))
+    assert 0.01 < radius < SETTLE.jitter_prior     # 1 cm per axis: about 2.5 cm at 90 %
+
+
+def test_a_stray_position_does_not_move_an_entry_but_a_repeated_one_does() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0)], now=float(t))
+    (eid,) = [e.entry_id for e in m]
+    m.set_mapped(eid, 3)
+    ch = m.update([at(0.6, 0.0)], now=2.0)          # two objects seen as one, once
+    assert ch.associated == (eid,) and ch.moved == ()
+    assert m.get(eid).position == pytest.approx((0.5, 0.0, 0.05))
+    m.update([at(0.5, 0.01)], now=3.0)
+    ch = m.update([at(0.62, 0.0)], now=4.0)         # the object was moved: seen there ...
+    assert ch.moved == ()
+    ch = m.update([at(0.63, 0.0)], now=5.0)         # ... twice
+    assert ch.moved == (eid,) and not m.get(eid).mapped
+    assert m.get(eid).position == pytest.approx((0.63, 0.0, 0.05))
+
+
+def test_a_place_where_fixation_found_nothing_waits_for_its_interest() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0, activation=0.9), at(0.5, 0.4, activation=0.2)], now=float(t))
+    lost, other = (e.entry_id for e in m)
+    m.forget(lost)                                   # fixated: nothing there
+    for t in (2, 3):
+        m.update([at(0.52, 0.0, activation=0.9), at(0.5, 0.4, activation=0.2)],
+                 now=float(t))
+    (again,) = [e.entry_id for e in m if e.entry_id != other]
+    assert m.get(again).inhibited and not m.get(other).inhibited
+    assert m.select_focus() == other                 # the lower activation, not inhibited
+    m.set_mapped(other, 1)
+    m.focus(other, now=6.0)
+    m.advance(10.0)                                  # interests: again 0.7, other 0.4
+    assert m.select_focus() == again                 # visited by its interest
+    m.set_mapped(again, 2)
+    assert not m.get(again).inhibited and m.lost_places == []
+
+
+def test_a_place_seen_once_is_looked_at_again_when_nothing_else_is_unmapped() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0), at(0.5, 0.4)], now=float(t))
+    a, b = (e.entry_id for e in m)
+    m.update([at(0.5, 0.0), at(0.5, 0.4), at(0.4, -0.9)], now=2.0)  # the far edge, once
+    m.update([at(0.5, 0.0), at(0.5, 0.4)], now=3.0, visible=lambda p: p[1] > -0.5)
+    assert len(m.candidates) == 1 and len(m) == 2                  # out of view: it waits
+    assert m.select_focus() == a                                   # unmapped entries first
+    m.set_mapped(a, 1)
+    m.set_mapped(b, 2)
+    m.focus(a, now=3.0)
+    m.focus(b, now=3.0)
+    m.advance(5.0)                                                 # candidate 0.3, a b 0.2
+    seen_once = m.select_focus()
+    assert seen_once not in (a, b) and m.candidates == []
+    entry = m.get(seen_once)
+    assert entry.position[:2] == pytest.approx((0.4, -0.9)) and not entry.mapped
+    assert entry.interest == pytest.approx(0.3)

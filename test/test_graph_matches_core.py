@@ -38,7 +38,8 @@ def test_graph_and_core_write_the_same_cycles(no_leaks, tmp_path, ros_domain, wo
                          policy=policy, progress=False, domain_id=ros_domain,
                          timeout_s=240), log=io.StringIO())
     core, graph = rows(tmp_path / "core" / "cycles.csv"), rows(tmp_path / "graph" / "cycles.csv")
-    assert len(core) == len(graph) == cycles
+    status = (tmp_path / "graph" / "run_status.json").read_text()
+    assert len(core) == len(graph) == cycles, f"{len(core)} core, {len(graph)} graph: {status}"
     kinds = {r["action"] for r in core}
     assert {"attention_shift", "haptic_improvement", "map_update"} <= kinds  # a real test
     for c, g in zip(core, graph, strict=True):

@@ -97,12 +97,36 @@ class SpatialMapConfig:
         vanish_frames: An entry whose position is in view but that no ROI matched in this
             many consecutive frames has vanished and is removed.
         interest_rate: Growth of interest per second of simulated time (1/s).
+        settle_observations: A ROI that matches no entry is only a candidate; it settles
+            as an entry once this many observations (one per frame) agreed on its place
+            within the consistency radius. 1 settles every ROI at once.
+        jitter_quantile: The consistency radius is this quantile of the robot's own
+            position jitter: the distances between an entry and the ROIs associated with
+            it, measured as the map runs.
+        jitter_prior: Consistency radius (m) until ``jitter_samples`` distances are
+            measured.
+        jitter_samples: Distances needed before the measured quantile replaces the prior.
+        max_object_height: Highest a ROI's centre can be above the ground (m): no object
+            of a world file is larger (docs/world-files.md, ``size`` <= 0.5 m). Higher, or
+            below the ground by more than the consistency radius, a ROI is impossible and
+            never enters the map.
+        max_height_per_width: Objects rest on the ground and none is taller than this many
+            times its narrowest horizontal extent (a prism: 0.87 size high, size / 2 deep;
+            the other shapes 1), so a ROI whose centre is higher above the ground than this
+            times its measured size (``Roi.size_m``, plus the consistency radius) floats:
+            a false stereo match, not an object.
     """
 
     association_radius: float = 0.15
     moved_threshold: float = 0.12
     vanish_frames: int = 3
     interest_rate: float = 0.1
+    settle_observations: int = 2
+    jitter_quantile: float = 0.9
+    jitter_prior: float = 0.05
+    jitter_samples: int = 20
+    max_object_height: float = 0.5
+    max_height_per_width: float = 2.0
 
     def __post_init__(self) -> None:
         _check_range("SpatialMapConfig", "association_radius", self.association_radius,
@@ -116,6 +140,14 @@ class SpatialMapConfig:
         _check_count("SpatialMapConfig", "vanish_frames", self.vanish_frames, low=1)
         _check_range("SpatialMapConfig", "interest_rate", self.interest_rate,
                      0.0, 1e6, low_open=True)
+        _check_count("SpatialMapConfig", "settle_observations", self.settle_observations, low=1)
+        _check_range("SpatialMapConfig", "jitter_quantile", self.jitter_quantile, 0.0, 1.0)
+        _check_range("SpatialMapConfig", "jitter_prior", self.jitter_prior,
+                     0.0, self.association_radius, low_open=True)
+        _check_count("SpatialMapConfig", "jitter_samples", self.jitter_samples, low=1)
+        for name in ("max_object_height", "max_height_per_width"):
+            _check_range("SpatialMapConfig", name, getattr(self, name), 0.0, 100.0,
+                         low_open=True)
 
 
 @dataclass(frozen=True)

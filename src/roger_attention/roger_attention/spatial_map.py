@@ -5,12 +5,22 @@ known, the pre-attentive activation of its freshest ROI and its interest (sectio
 when the entry is first settled, growing with simulated time, reset when attention focuses
 on it. ROIs are associated with entries by position; moved, vanished and new objects are
 noticed and the map follows.
+
+The map holds only what is there. A ROI at an impossible place (under the ground, higher
+than any object of the world, or floating higher above the ground than its own width
+allows) never enters it. A ROI that matches no entry is first a candidate, and settles as
+an entry only once further observations agree on its place; the radius they must agree
+within is calibrated from the robot's own position jitter, measured between looks. A ROI
+near the retina's edge (its position is an estimate) settles nothing, and a single stray
+position does not move an entry. A place where a fixation found nothing is remembered: an
+entry settled there again waits for its interest instead of winning by its activation.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -18,11 +28,15 @@ import numpy as np
 
 from roger_attention.config import SpatialMapConfig
 from roger_common.geometry import as_point
-from roger_common.types import Roi
+from roger_common.types import FEATURE_NAMES, Roi
 
 Position = tuple[float, float, float]
 #: Says whether a robot-frame position is currently inside the retina.
 VisibleFn = Callable[[Position], bool]
+#: Index of the size feature D (eq. 4) in a ROI's features.
+SIZE_INDEX = FEATURE_NAMES.index("D")
+#: How many of the latest entry-to-ROI distances the jitter quantile is taken over.
+JITTER_WINDOW = 256
 
 
 @dataclass
@@ -31,7 +45,8 @@ class MapEntry:
 
     Attributes:
         entry_id: Unique for the lifetime of the map (never reused).
-        position: Latest position of the associated ROI, robot frame, metres.
+        position: Where the entry is, robot frame, metres: the position of the latest
+            associated ROI that agreed with it (see ``SpatialMap._follow``).
         roi: Freshest ROI associated with the entry (``mapped`` mirrors the entry).
         features: Features of the focus so far: those of the freshest ROI, plus features it
             does not know but an earlier ROI of the same focus measured (the weight of a
@@ -47,6 +62,12 @@ class MapEntry:
         mapped_position: Where the entry was when it was mapped (None while unmapped).
         misses: Consecutive observations in which its position was in view but no ROI
             matched it.
+        inhibited: Settled where an earlier fixation found nothing (``forget``): until
+            it is mapped it wins an attention shift only by interest, as a mapped entry
+            does, not by its activation (inhibition of return).
+        pending: A position the latest associated ROIs agree on but the entry's does not
+            (see ``SpatialMap._follow``); None when they agree.
+        pending_count: Consecutive observations at ``pending``.
     """
 
     entry_id: int
@@ -63,16 +84,49 @@ class MapEntry:
     activation: float = 0.0
     mapped_position: Position | None = None
     misses: int = 0
+    inhibited: bool = False
+    pending: Position | None = None
+    pending_count: int = 0
+
+
+@dataclass
+class Candidate:
+    """A place where a ROI was seen that is not (yet) an entry.
+
+    Attributes:
+        position: Mean position of the agreeing observations, robot frame, metres.
+        roi: Latest ROI seen there.
+        observations: Agreeing observations so far (one per frame).
+        last_frame: Number of the last observation that saw it.
+        interest: Grows with simulated time from its first sighting, as an entry's does.
+    """
+
+    position: Position
+    roi: Roi
+    observations: int
+    last_frame: int
+    interest: float = 0.0
 
 
 @dataclass(frozen=True)
 class MapChanges:
-    """What one observation changed, by entry id."""
+    """What one observation changed, by entry id; ROIs by their index in the observation.
+
+    Attributes:
+        new: Entries settled by this observation.
+        associated: Entries a ROI was associated with.
+        moved: Mapped entries that moved (mapping status cleared).
+        vanished: Entries removed because their place was in view and empty.
+        candidates: ROIs kept as candidates (not yet agreed on by enough observations).
+        impossible: ROIs at impossible places, left out.
+    """
 
     new: tuple[int, ...] = ()
     associated: tuple[int, ...] = ()
     moved: tuple[int, ...] = ()
     vanished: tuple[int, ...] = ()
+    candidates: tuple[int, ...] = ()
+    impossible: tuple[int, ...] = ()
 
 
 def _distance(a: Sequence[float], b: Sequence[float]) -> float:
@@ -84,16 +138,24 @@ class SpatialMap:
     """Entries by id, their association with incoming ROIs, interest and winner-take-all.
 
     Attributes:
-        config: Radii, vanish count and interest rate.
+        config: Radii, vanish count, interest rate, settling and workspace limits.
         entries: Entries by id, in settling order.
+        candidates: Places seen but not yet settled (never attended to).
         frame: Number of observations merged so far.
         time: Simulated time the interests are brought up to.
+        jitter: The latest distances between an entry and the ROI associated with it (the
+            robot's own position jitter between looks), metres.
+        lost_places: Where a fixation found nothing (``forget``), until an entry there is
+            mapped.
     """
 
     config: SpatialMapConfig = field(default_factory=SpatialMapConfig)
     entries: dict[int, MapEntry] = field(default_factory=dict)
+    candidates: list[Candidate] = field(default_factory=list)
     frame: int = 0
     time: float | None = None
+    jitter: deque[float] = field(default_factory=lambda: deque(maxlen=JITTER_WINDOW))
+    lost_places: list[Position] = field(default_factory=list)
     _next_id: int = field(default=1, init=False, repr=False)
 
     def __len__(self) -> int:
@@ -115,20 +177,54 @@ class SpatialMap:
             grow = self.config.interest_rate * (now - self.time)
             for entry in self.entries.values():
                 entry.interest += grow
+            for candidate in self.candidates:
+                candidate.interest += grow
         if self.time is None or now > self.time:
             self.time = now
+
+    def consistency_radius(self) -> float:
+        """How far apart two observations of one still object may be (m).
+
+        The ``jitter_quantile`` of the measured entry-to-ROI distances once
+        ``jitter_samples`` are measured, ``jitter_prior`` before; never more than
+        ``association_radius``.
+        """
+        cfg = self.config
+        if len(self.jitter) < cfg.jitter_samples:
+            return cfg.jitter_prior
+        radius = float(np.quantile(np.fromiter(self.jitter, float), cfg.jitter_quantile))
+        return min(radius, cfg.association_radius)
+
+    def possible(self, roi: Roi) -> bool:
+        """Whether a ROI can be an object of the workspace.
+
+        Objects rest on the ground: a ROI's centre below the ground by more than the
+        consistency radius, above ``max_object_height``, or higher above the ground than
+        ``max_height_per_width`` times its own measured width (plus the radius) is a
+        false match of the two retinas, never an object.
+        """
+        cfg = self.config
+        tolerance = self.consistency_radius()
+        z = float(roi.position[2])
+        width = float(roi.size_m)
+        ceiling = min(cfg.max_object_height, cfg.max_height_per_width * width)
+        return bool(np.isfinite(roi.position).all()) and -tolerance <= z <= ceiling + tolerance
 
     def update(self, rois: Sequence[Roi], now: float,
                visible: VisibleFn | None = None) -> MapChanges:
         """Merge one ROI array into the map.
 
-        ROIs and entries are paired greedily by increasing distance, each at most once,
-        within ``association_radius``. An unpaired ROI settles a new entry (interest 0).
-        A paired mapped entry that drifted more than ``moved_threshold`` from where it was
-        mapped has moved: its mapping status is cleared. An unpaired entry whose position
-        ``visible`` reports in view for ``vanish_frames`` observations in a row has
-        vanished and is removed. Without ``visible`` nothing is ever removed, because the
-        map cannot tell an object gone from one out of view.
+        ROIs at impossible places (:meth:`possible`) are left out. The others and the
+        entries are paired greedily by increasing distance, each at most once, within
+        ``association_radius``. A paired mapped entry that drifted more than
+        ``moved_threshold`` from where it was mapped has moved: its mapping status is
+        cleared. An unpaired ROI goes to the nearest candidate within the radius, or starts
+        a new one; a candidate settles as an entry (interest 0) once
+        ``settle_observations`` observations agreed within :meth:`consistency_radius`. An
+        unpaired entry whose position ``visible`` reports in view for ``vanish_frames``
+        observations in a row has vanished and is removed; a candidate in view and not
+        seen again is dropped at once. Without ``visible`` nothing is ever removed, because
+        the map cannot tell an object gone from one out of view.
 
         Args:
             rois: The ROIs of one frame, positions in the robot frame.
@@ -136,27 +232,36 @@ class SpatialMap:
             visible: Whether a map position is currently inside the retina.
 
         Returns:
-            The ids of new, associated, moved and vanished entries.
+            The ids of new, associated, moved and vanished entries; the indices of ROIs
+            kept as candidates and of impossible ones.
         """
         self.advance(now)
         self.frame += 1
         radius = self.config.association_radius
+        possible = [self.possible(roi) for roi in rois]
+        impossible = [k for k, ok in enumerate(possible) if not ok]
+        usable = [k for k, ok in enumerate(possible) if ok]
         pairs = sorted(
-            (_distance(roi.position, e.position), k, e.entry_id)
-            for k, roi in enumerate(rois) for e in self.entries.values()
-            if _distance(roi.position, e.position) <= radius
+            (_distance(rois[k].position, e.position), k, e.entry_id)
+            for k in usable for e in self.entries.values()
+            if _distance(rois[k].position, e.position) <= radius
         )
         roi_used: set[int] = set()
         entry_used: set[int] = set()
         moved: list[int] = []
-        for _, k, entry_id in pairs:
+        for distance, k, entry_id in pairs:
             if k in roi_used or entry_id in entry_used:
                 continue
             roi_used.add(k)
             entry_used.add(entry_id)
+            self.jitter.append(distance)
             if self._associate(self.entries[entry_id], rois[k], now):
                 moved.append(entry_id)
-        new = [self._settle(roi, now) for k, roi in enumerate(rois) if k not in roi_used]
+        # A ROI placed near the retina's edge is mostly one cut by it, whose position is an
+        # estimate (docs/perception.md): it keeps its entry alive but settles no new one.
+        left = [k for k in usable if k not in roi_used
+                and (visible is None or visible(as_point(rois[k].position)))]
+        new, waiting = self._candidates(rois, left, now, visible)
         vanished: list[int] = []
         if visible is not None:
             for entry in list(self.entries.values()):
@@ -167,7 +272,51 @@ class SpatialMap:
                     if entry.misses >= self.config.vanish_frames:
                         del self.entries[entry.entry_id]
                         vanished.append(entry.entry_id)
-        return MapChanges(tuple(new), tuple(sorted(entry_used)), tuple(moved), tuple(vanished))
+        return MapChanges(tuple(new), tuple(sorted(entry_used)), tuple(moved),
+                          tuple(vanished), tuple(waiting), tuple(impossible))
+
+    def _candidates(self, rois: Sequence[Roi], left: list[int], now: float,
+                    visible: VisibleFn | None) -> tuple[list[int], list[int]]:
+        """Unpaired ROIs meet the candidates: returns (settled entry ids, ROIs waiting)."""
+        cfg = self.config
+        agree = self.consistency_radius()
+        pairs = sorted(
+            (_distance(rois[k].position, c.position), k, j)
+            for k in left for j, c in enumerate(self.candidates)
+            if _distance(rois[k].position, c.position) <= cfg.association_radius
+        )
+        roi_of: dict[int, int] = {}   # candidate index -> ROI index
+        for distance, k, j in pairs:
+            if j in roi_of or k in roi_of.values():
+                continue
+            roi_of[j] = k
+            c = self.candidates[j]
+            if distance <= agree:
+                n = c.observations
+                mean = (np.asarray(c.position) * n + np.asarray(rois[k].position)) / (n + 1)
+                c.position, c.observations = as_point(mean), n + 1
+            else:  # the same place, not the same position: start again from this one
+                c.position, c.observations = as_point(rois[k].position), 1
+            c.roi, c.last_frame = rois[k], self.frame
+        # A candidate in view and not seen again was a passing error; one out of view
+        # cannot be told gone and waits.
+        kept: list[tuple[Candidate, int | None]] = [
+            (c, roi_of.get(j)) for j, c in enumerate(self.candidates)
+            if j in roi_of or visible is None or not visible(c.position)]
+        taken = set(roi_of.values())
+        kept += [(Candidate(as_point(rois[k].position), rois[k], 1, self.frame), k)
+                 for k in left if k not in taken]
+        settled: list[int] = []
+        waiting: list[int] = []
+        self.candidates = []
+        for c, index in kept:
+            if c.observations >= cfg.settle_observations:
+                settled.append(self._settle(c.roi, now))
+                continue
+            self.candidates.append(c)
+            if index is not None:
+                waiting.append(index)
+        return settled, sorted(waiting)
 
     def _settle(self, roi: Roi, now: float) -> int:
         entry_id = self._next_id
@@ -178,11 +327,12 @@ class SpatialMap:
             features=np.asarray(roi.features, np.float32).copy(),
             known=np.asarray(roi.known, bool).copy(),
             first_seen=now, last_seen=now, last_frame=self.frame,
-            activation=float(roi.activation))
+            activation=float(roi.activation),
+            inhibited=self._near_lost_place(as_point(roi.position)))
         return entry_id
 
     def _associate(self, entry: MapEntry, roi: Roi, now: float) -> bool:
-        entry.position = as_point(roi.position)
+        self._follow(entry, as_point(roi.position))
         entry.activation = float(roi.activation)
         entry.last_seen = now
         entry.last_frame = self.frame
@@ -197,9 +347,42 @@ class SpatialMap:
         entry.roi = dataclasses.replace(roi, mapped=entry.mapped)
         return moved
 
+    def _follow(self, entry: MapEntry, seen: Position) -> None:
+        """Move the entry's position to ``seen`` when it agrees with it (within the
+        consistency radius), or once ``settle_observations`` observations in a row agree on
+        another place: a single stray position (a region cut by the retina's edge, two
+        objects seen as one) does not drag the entry away from its object."""
+        radius = self.consistency_radius()
+        if _distance(seen, entry.position) <= radius:
+            entry.position, entry.pending, entry.pending_count = seen, None, 0
+            return
+        if entry.pending is not None and _distance(seen, entry.pending) <= radius:
+            entry.pending_count += 1
+        else:
+            entry.pending_count = 1
+        entry.pending = seen
+        if entry.pending_count >= self.config.settle_observations:
+            entry.position, entry.pending, entry.pending_count = seen, None, 0
+
     def forget(self, entry_id: int) -> None:
-        """Remove an entry: the eyes fixated its place and saw nothing there."""
-        self.entries.pop(entry_id, None)
+        """Remove an entry: the eyes fixated its place and saw nothing there.
+
+        The place is remembered: an entry settled there again is ``inhibited``.
+        """
+        entry = self.entries.pop(entry_id, None)
+        if entry is None:
+            return
+        radius = self.consistency_radius()
+        self.lost_places = [p for p in self.lost_places
+                            if _distance(p, entry.position) > radius]
+        self.lost_places.append(entry.position)
+
+    def _near_lost_place(self, position: Position) -> bool:
+        # The association radius: what the map takes for one place. A fixated object that
+        # perception fails to separate comes back 3-8 cm from where it was lost (measured
+        # on worlds/inspection.yaml), beyond the consistency radius.
+        radius = self.config.association_radius
+        return any(_distance(position, p) <= radius for p in self.lost_places)
 
     def focus(self, entry_id: int, now: float) -> None:
         """Attention focuses on the entry: its interest resets and its feature
@@ -221,6 +404,10 @@ class SpatialMap:
         """A map update: mapping status 1, the address when known, the mapped position."""
         entry = self.entries[entry_id]
         entry.mapped = True
+        entry.inhibited = False
+        radius = self.consistency_radius()
+        self.lost_places = [p for p in self.lost_places
+                            if _distance(p, entry.position) > radius]
         if address >= 0:
             entry.address = address
         entry.mapped_position = entry.position
@@ -268,22 +455,27 @@ class SpatialMap:
     def select_focus(self, exclude: int | None = None) -> int | None:
         """The attention shift's winner-take-all (section 2 and section 5).
 
-        While some entry is unmapped, the unmapped entry of largest pre-attentive
-        activation wins; once everything is mapped, the entry of largest interest, which
-        keeps the robot vigilant. The current focus ``exclude`` only wins when it is the
-        only entry. Ties go to the oldest entry.
+        While some entry is unmapped (and not ``inhibited``), the unmapped entry of largest
+        pre-attentive activation wins; otherwise the entry or candidate of largest interest,
+        which keeps the robot vigilant. A candidate that wins (a place seen once, from a
+        look that no later look covered) is settled as an entry then, so that the shift
+        looks at it again. The current focus ``exclude`` only wins when it is the only
+        entry. Ties go to the oldest entry.
 
         Returns:
-            The winning entry id, or None for an empty map.
+            The winning entry id, or None for an empty map without candidates.
         """
-        candidates = [e for e in self.entries.values() if e.entry_id != exclude]
-        if not candidates:
-            candidates = list(self.entries.values())
-        if not candidates:
-            return None
-        unmapped = [e for e in candidates if not e.mapped]
+        rivals = [e for e in self.entries.values() if e.entry_id != exclude]
+        if not rivals:
+            rivals = list(self.entries.values())
+        unmapped = [e for e in rivals if not e.mapped and not e.inhibited]
         if unmapped:
-            best = max(unmapped, key=lambda e: (e.activation, -e.entry_id))
-        else:
-            best = max(candidates, key=lambda e: (e.interest, -e.entry_id))
-        return best.entry_id
+            return max(unmapped, key=lambda e: (e.activation, -e.entry_id)).entry_id
+        best = max(rivals, key=lambda e: (e.interest, -e.entry_id), default=None)
+        waiting = max(self.candidates, key=lambda c: c.interest, default=None)
+        if waiting is not None and (best is None or waiting.interest > best.interest):
+            self.candidates.remove(waiting)
+            entry_id = self._settle(waiting.roi, self.time or 0.0)
+            self.entries[entry_id].interest = waiting.interest
+            return entry_id
+        return None if best is None else best.entry_id

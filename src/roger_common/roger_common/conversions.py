@@ -219,7 +219,8 @@ def roi_to_msg(roi: Roi) -> RoiMsg:
                   features=[float(v) for v in roi.features], known=[bool(k) for k in roi.known],
                   activation=float(roi.activation), retinal_size=float(roi.retinal_size),
                   mean_intensity=float(roi.mean_intensity), motion=float(roi.motion),
-                  tactile=float(roi.tactile), mapped=bool(roi.mapped))
+                  tactile=float(roi.tactile), mapped=bool(roi.mapped), cut=bool(roi.cut),
+                  size_m=float(roi.size_m))
 
 
 def msg_to_roi(msg: RoiMsg) -> Roi:
@@ -237,7 +238,8 @@ def msg_to_roi(msg: RoiMsg) -> Roi:
     return Roi(roi_id=int(msg.id), bbox=(msg.x0, msg.y0, msg.x1, msg.y1), position=pos,
                features=features, known=known, activation=float(msg.activation),
                retinal_size=float(msg.retinal_size), mean_intensity=float(msg.mean_intensity),
-               motion=float(msg.motion), tactile=float(msg.tactile), mapped=bool(msg.mapped))
+               motion=float(msg.motion), tactile=float(msg.tactile), mapped=bool(msg.mapped),
+               cut=bool(msg.cut), size_m=float(msg.size_m))
 
 
 def rois_to_msg(rois: list[Roi], stamp: float, goal_id: int) -> RoiArray:

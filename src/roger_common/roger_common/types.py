@@ -203,6 +203,9 @@ class Roi:
         cut: True when the ROI touches the edge of the left retina: part of the object
             lies outside the view, so its position (and size) are estimates that move as
             the gaze moves; trust it less than an uncut ROI's.
+        size_m: Metric size of what the retina shows of it: the side of a square of its
+            silhouette's area at its depth, metres (for a cut or occluded ROI, of the part
+            in view; the feature D is then unknown).
     """
 
     roi_id: int
@@ -217,6 +220,7 @@ class Roi:
     tactile: float = 0.0
     mapped: bool = False
     cut: bool = False
+    size_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -60,8 +60,10 @@ class CycleRow:
     def as_csv(self) -> list[str]:
         """The row's cells in CSV_COLUMNS order (empty cells for unknowns)."""
         pos = self.position or (math.nan, math.nan, math.nan)
+        # /roger/policy_state carries the TD error as float32: round it the same way, or a
+        # value on a printing tie (-0.05578125) is written differently by the core loop.
         td = "" if self.td_error is None or not math.isfinite(self.td_error) else \
-            f"{self.td_error:.6g}"
+            f"{float(np.float32(self.td_error)):.6g}"
         return [str(self.cycle), self.state, ACTION_NAMES.get(self.action, str(self.action)),
                 f"{self.reward:.6g}", td, str(self.roi), self.true_object or "", self.outcome,
                 self.state_after, str(self.address),

@@ -6,20 +6,28 @@ it is the weighted mean of five terms, each in [0, 1]:
 
 - size: retinal share / ``size_norm``, clipped (large ROIs attract attention);
 - intensity: mean retinal intensity / ``contrast_max``, clipped (bright ROIs attract);
-- motion: displacement of the ROI since the previous frame (see ``motion_term``);
+- motion: change of the ROI's pixels since the previous frame once Roger's own eye and
+  neck motion is compensated (see ``visual_motion``);
 - tactile: 1 while a hand touches the ROI's object;
 - unmapped: 1 - mapping status (objects not yet in the spatial map attract).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from roger_common.geometry import as_point, in_view
 from roger_common.types import CameraModel, EyePose
 from roger_perception.config import PerceptionConfig
+
+#: Erosion element of ``visual_motion``: one pixel off the ROI's rim.
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+#: Fewer interior pixels than this and the whole ROI is compared.
+_MIN_INNER = 4
 
 
 def pre_attentive_activation(retinal_size: float, mean_intensity: float, motion: float,
@@ -37,33 +45,82 @@ def pre_attentive_activation(retinal_size: float, mean_intensity: float, motion:
     return float(np.clip(weights @ terms / weights.sum(), 0.0, 1.0))
 
 
-def motion_term(position: Sequence[float], previous: Sequence[Sequence[float]],
-                previous_view: tuple[CameraModel, EyePose] | None,
-                cfg: PerceptionConfig) -> float:
-    """Visual motion of a ROI in [0, 1] from its displacement since the previous frame.
+@dataclass(frozen=True)
+class MotionView:
+    """What visual motion compares a new frame against: the previous left retina, smoothed
+    (``motion_image``), with the camera and left-eye pose it was seen with."""
 
-    The displacement is the distance (robot frame) to the nearest ROI position of the
-    previous frame, so eye and neck movements do not count as motion. Less than
-    ``motion_deadband_m`` is triangulation jitter (0); ``motion_norm_m`` more gives 1. A
-    ROI that the previous left eye could not see has no evidence of motion (0); one it
-    could see but that had no ROI near it has appeared (1).
+    image: np.ndarray
+    camera: CameraModel
+    pose: EyePose
+
+
+def motion_image(left: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
+    """The left retina smoothed by ``motion_blur_px``: pixel noise and the sub-pixel
+    misregistration of a re-projection then no longer pass for change."""
+    image = np.asarray(left, np.float32)
+    if cfg.motion_blur_px <= 0:
+        return image
+    return cv2.GaussianBlur(image, (0, 0), cfg.motion_blur_px)
+
+
+def visual_motion(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int, int],
+                  depth: float, camera: CameraModel, pose: EyePose,
+                  previous: MotionView | None, cfg: PerceptionConfig) -> float:
+    """Visual motion of a ROI in [0, 1], with Roger's own eye and neck motion compensated.
+
+    Each pixel of the ROI (its mask eroded by one pixel, so that its rim, where a
+    re-projection error shows most, does not count) is put back in space at the ROI's
+    depth and projected into the previous frame's left eye: where the eyes moved but the
+    world did not, the previous retina shows the same surface there. Eye and neck
+    movements are mostly rotations about points near the eyes, so the re-projection
+    hardly depends on the depth being exact. The motion is the share of those pixels
+    whose (smoothed) intensity changed by more than ``motion_threshold``: near 0 for a
+    still object whatever the eyes did, the share of the ROI the object moved off itself
+    for a moved one, and 1 for an object where the previous frame saw bare ground.
 
     Args:
-        position: The ROI's position now.
-        previous: ROI positions of the previous frame.
-        previous_view: Camera and left-eye pose of the previous frame; None on the first.
-        cfg: Gives the dead band and the normaliser.
+        image: ``motion_image`` of this frame's left retina.
+        mask: The ROI's pixels inside ``bbox`` (shape ``(v1 - v0, u1 - u0)``).
+        bbox: (u0, v0, u1, v1) in the left retina.
+        depth: The ROI's depth along the left optical axis, metres.
+        camera: Camera model of this frame.
+        pose: Left-eye pose of this frame.
+        previous: The previous frame's view; None on the first frame (motion 0).
+        cfg: Gives ``motion_threshold`` and ``motion_min_evidence``.
+
+    Returns:
+        0 when there is no previous frame, or when less than ``motion_min_evidence`` of
+        the ROI was in the previous left eye's view (no evidence either way).
     """
-    if previous_view is None:
+    if previous is None or not math.isfinite(depth) or depth <= 0:
         return 0.0
-    camera, pose = previous_view
-    if not in_view(camera, pose, as_point(position)):
+    inner = cv2.erode(mask.astype(np.uint8), _CROSS).astype(bool)
+    if inner.sum() < _MIN_INNER:
+        inner = mask.astype(bool)  # too thin to erode: keep the rim
+    rows, cols = np.nonzero(inner)
+    if rows.size == 0:
         return 0.0
-    if len(previous) == 0:
-        return 1.0
-    d = float(np.min(np.linalg.norm(np.asarray(previous, float)
-                                    - np.asarray(position, float), axis=1)))
-    return float(min(1.0, max(0.0, (d - cfg.motion_deadband_m) / cfg.motion_norm_m)))
+    u0, v0 = bbox[0], bbox[1]
+    u = cols + u0 + 0.5   # pixel centres (geometry.camera_ray)
+    v = rows + v0 + 0.5
+    ray = np.stack([(u - camera.width / 2.0) / camera.focal_px,
+                    (v - camera.height / 2.0) / camera.focal_px, np.ones(u.shape)])
+    points = pose.rotation @ (ray * depth) + np.asarray(pose.position, float)[:, None]
+    local = previous.pose.rotation.T @ (points - np.asarray(previous.pose.position,
+                                                            float)[:, None])
+    ahead = local[2] > 1e-6
+    z = np.where(ahead, local[2], 1.0)
+    pcam = previous.camera
+    up = pcam.focal_px * local[0] / z + pcam.width / 2.0 - 0.5   # array coordinates
+    vp = pcam.focal_px * local[1] / z + pcam.height / 2.0 - 0.5
+    seen = ahead & (up >= 0) & (up <= pcam.width - 1) & (vp >= 0) & (vp <= pcam.height - 1)
+    if seen.mean() < cfg.motion_min_evidence:
+        return 0.0
+    before = cv2.remap(previous.image, up[seen].astype(np.float32)[None, :],
+                       vp[seen].astype(np.float32)[None, :], cv2.INTER_LINEAR).ravel()
+    now = image[rows[seen] + v0, cols[seen] + u0]
+    return float(np.mean(np.abs(now - before) > cfg.motion_threshold))
 
 
 def is_mapped(position: Sequence[float], mapped_positions: Sequence[Sequence[float]],

@@ -74,8 +74,6 @@ class PerceptionConfig:
         max_area_ratio: Largest ratio of the areas of two matched ROIs.
         max_intensity_diff: Largest difference of mean intensity of two matched ROIs.
         size_norm: Retinal share (of the image area) at which the size term saturates.
-        motion_norm_m: Displacement since the previous frame that makes the motion term 1.
-        motion_deadband_m: Displacement regarded as triangulation jitter, not motion.
         weight_size, weight_intensity, weight_motion, weight_tactile, weight_unmapped:
             Weights of the pre-attentive activation terms (non-negative, not all zero).
         cv_threads: OpenCV worker threads (process-wide, set when a Perception is built;
@@ -96,6 +94,14 @@ class PerceptionConfig:
         notch_px: Deepest concave notch of ground (pixels, from the convex hull) the
             union of two fragments of one object may hold: the image of a convex shape
             is convex up to digitisation.
+        motion_threshold: Change of a pixel's smoothed intensity, after Roger's own eye and
+            neck motion is compensated, that counts as visual motion: half of
+            ``fg_threshold``, since an object is at least that much brighter than the
+            ground, so an object appearing on bare ground changes every pixel by more.
+        motion_blur_px: Sigma (pixels) of the Gaussian that smooths the left retina before
+            motion is measured (pixel noise, sub-pixel re-projection error); 0: none.
+        motion_min_evidence: Share of a ROI's pixels the previous left eye must have seen
+            for its motion to be measured; below it the motion is 0 (no evidence).
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -128,8 +134,6 @@ class PerceptionConfig:
     max_area_ratio: float = 2.5
     max_intensity_diff: float = 0.15
     size_norm: float = 0.05
-    motion_norm_m: float = 0.05
-    motion_deadband_m: float = 0.01
     weight_size: float = 1.0
     weight_intensity: float = 1.0
     weight_motion: float = 1.0
@@ -140,6 +144,9 @@ class PerceptionConfig:
     min_stereo_samples: int = 8
     depth_sigmas: float = 3.0
     notch_px: float = 1.5
+    motion_threshold: float = 0.03
+    motion_blur_px: float = 1.0
+    motion_min_evidence: float = 0.5
 
     def __post_init__(self) -> None:
         sig = tuple(self.log_sigmas)
@@ -179,9 +186,8 @@ class PerceptionConfig:
             "match_window_sigmas", "size_view_distance_m", "w_max_kg", "haptic_radius_m",
             "mapped_radius_m",
             "fg_threshold", "epipolar_tol_px", "max_ray_gap_m", "max_intensity_diff",
-            "size_norm", "motion_norm_m", "grad_threshold", "sweep_step_px",
-            "match_cost_trunc", "max_match_cost", "depth_sigmas",
-            "notch_px",
+            "size_norm", "grad_threshold", "sweep_step_px",
+            "match_cost_trunc", "max_match_cost", "depth_sigmas", "notch_px",
         )
         for name in positive:
             value = getattr(self, name)
@@ -194,12 +200,17 @@ class PerceptionConfig:
             raise _fail("max_area_ratio", self.max_area_ratio, "need a finite number >= 1")
         if self.fg_threshold >= 1.0:
             raise _fail("fg_threshold", self.fg_threshold, "need < 1 (images are in [0, 1])")
-        non_negative = ("stereo_smoothness", "motion_deadband_m", "min_depth_rise",
+        non_negative = ("stereo_smoothness", "min_depth_rise", "motion_blur_px",
                         *self.weight_names())
         for name in non_negative:
             value = getattr(self, name)
             if not _finite(value) or value < 0:
                 raise _fail(name, value, "need a finite number >= 0")
+        if not (_finite(self.motion_threshold) and 0 < self.motion_threshold < 1):
+            raise _fail("motion_threshold", self.motion_threshold, "need 0 < value < 1")
+        if not (_finite(self.motion_min_evidence) and 0 < self.motion_min_evidence <= 1):
+            raise _fail("motion_min_evidence", self.motion_min_evidence,
+                        "need 0 < value <= 1")
         if sum(self.activation_weights()) <= 0:
             raise _fail("weight_unmapped", self.weight_unmapped,
                         "the activation weights must not all be zero")

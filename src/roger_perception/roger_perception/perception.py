@@ -9,7 +9,7 @@ One call of ``Perception.process`` per stereo pair:
 4. pre-attentive activation of each ROI (activation).
 
 State kept between frames: haptic readings by position (so later frames carry W), the
-previous frame's ROI positions and left-eye view (for visual motion), and the last
+previous frame's smoothed left retina and left-eye view (for visual motion), and the last
 visual buffer (for viewers).
 """
 
@@ -24,8 +24,14 @@ import numpy as np
 
 from roger_common.errors import MessageError
 from roger_common.geometry import project_point
-from roger_common.types import SIZE_INDEX, WEIGHT_INDEX, CameraModel, EyePose, Roi, StereoFrame
-from roger_perception.activation import is_mapped, motion_term, pre_attentive_activation
+from roger_common.types import SIZE_INDEX, WEIGHT_INDEX, CameraModel, Roi, StereoFrame
+from roger_perception.activation import (
+    MotionView,
+    is_mapped,
+    motion_image,
+    pre_attentive_activation,
+    visual_motion,
+)
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
     assemble,
@@ -70,8 +76,7 @@ class Perception:
         self._half_windows = [max(1, round(self.config.match_window_sigmas * s))
                               for s in self.config.log_sigmas]
         self.haptic_memory = HapticMemory(self.config.haptic_radius_m)
-        self._previous_positions: list[tuple[float, float, float]] = []
-        self._previous_view: tuple[CameraModel, EyePose] | None = None
+        self._previous_view: MotionView | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
         #: Left-retina ROI of every pixel of the last frame: 0 none, roi_id + 1 (viewers
@@ -96,7 +101,6 @@ class Perception:
     def reset(self) -> None:
         """Forget haptic readings, the previous frame and the last visual buffer."""
         self.haptic_memory.clear()
-        self._previous_positions = []
         self._previous_view = None
         self._last_log = ([], [])
         self.last_roi_labels = np.zeros((0, 0), np.int32)
@@ -143,6 +147,7 @@ class Perception:
         magnitudes = [np.abs(g) for g in left_log]
         gmax = np.asarray(self._gmax)
         image_area = float(frame.camera.width * frame.camera.height)
+        moving = motion_image(frame.left, cfg)
         rois: list[Roi] = []
         roi_labels = np.zeros_like(labels)
         for roi_id, obj in enumerate(seen):
@@ -191,8 +196,8 @@ class Perception:
                 feats[SIZE_INDEX] = 0.0
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
-            motion = motion_term(position, self._previous_positions, self._previous_view,
-                                 cfg)
+            motion = visual_motion(moving, bl.mask, bl.bbox, obj.depth, frame.camera,
+                                   frame.left_pose, self._previous_view, cfg)
             tactile = 1.0 if touches(frame.haptic, position, cfg.haptic_radius_m) else 0.0
             mapped = is_mapped(position, mapped_positions, cfg.mapped_radius_m)
             activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
@@ -201,13 +206,12 @@ class Perception:
                 roi_id=roi_id, bbox=bl.bbox, position=position, features=feats,
                 known=known, activation=activation, retinal_size=retinal_size,
                 mean_intensity=bl.mean_intensity, motion=motion, tactile=tactile,
-                mapped=mapped, cut=obj.cut,
+                mapped=mapped, cut=obj.cut, size_m=size_m,
             ))
             tc = time.perf_counter()
             timings["features"] += tb - ta
             timings["activation"] += tc - tb
-        self._previous_positions = [r.position for r in rois]
-        self._previous_view = (frame.camera, frame.left_pose)
+        self._previous_view = MotionView(moving, frame.camera, frame.left_pose)
         self._last_log = (left_log, right_log)
         self.last_roi_labels = roi_labels
         self.last_timings = timings
