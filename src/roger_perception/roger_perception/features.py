@@ -62,7 +62,29 @@ class Rim:
     neighbours: frozenset[int]
 
 
-def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], labels: np.ndarray,
+class LabelNeighbours:
+    """For every pixel of a label image, the largest and the smallest non-zero label within
+    1 px (8-neighbourhood): whether, and which, other ROIs touch a ROI's contour pixel,
+    computed once per frame for all ROIs.
+
+    Attributes:
+        shape: (H, W) of the label image.
+        high: Largest label within 1 px (0 where only ground).
+        low: Smallest non-zero label within 1 px (``NONE`` where only ground).
+    """
+
+    NONE = np.iinfo(np.int32).max
+
+    def __init__(self, labels: np.ndarray) -> None:
+        k = np.ones((3, 3), np.uint8)
+        lab = labels.astype(np.float32)  # cv2 morphology has no int32; labels are small
+        self.shape = labels.shape
+        self.high = cv2.dilate(lab, k).astype(np.int32)
+        self.low = cv2.erode(np.where(labels > 0, lab, np.float32(self.NONE)), k)
+        self.low = np.where(self.low >= self.NONE, self.NONE, self.low).astype(np.int64)
+
+
+def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], near: LabelNeighbours,
                 own: int, m: int) -> Rim:
     """M points along the part of a ROI's outer contour that is its own silhouette edge.
 
@@ -76,11 +98,12 @@ def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], labels: np.nd
     Args:
         mask: The ROI's mask inside ``bbox``.
         bbox: (u0, v0, u1, v1) of the mask in the image.
-        labels: Label image of the retina: 0 ground, ``own`` this ROI, others other ROIs.
+        near: The neighbours of the frame's label image (0 ground, ``own`` this ROI,
+            others other ROIs).
         own: This ROI's label.
         m: Number of samples.
     """
-    h, w = labels.shape
+    h, w = near.shape
     padded = np.pad(mask.astype(np.uint8), 1)
     contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     pts = max(contours, key=len).reshape(-1, 2).astype(np.int64) - 1
@@ -89,14 +112,11 @@ def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], labels: np.nd
     u, v = pts[:, 0], pts[:, 1]
     on_border = (u <= 0) | (v <= 0) | (u >= w - 1) | (v >= h - 1)
     # Another ROI within 1 px (8-neighbourhood) of the contour pixel.
-    other = np.zeros(len(pts), bool)
-    neighbours: set[int] = set()
-    for du in (-1, 0, 1):
-        for dv in (-1, 0, 1):
-            lab = labels[np.clip(v + dv, 0, h - 1), np.clip(u + du, 0, w - 1)]
-            hit = (lab != 0) & (lab != own)
-            other |= hit
-            neighbours.update(int(x) for x in np.unique(lab[hit]))
+    high, low = near.high[v, u], near.low[v, u]
+    above, below = high != own, (low != own) & (low != LabelNeighbours.NONE)
+    other = above | below
+    neighbours = frozenset(int(x) for x in np.unique(np.concatenate([high[above],
+                                                                     low[below]])))
     edge = ~(on_border | other)
     chosen = pts[edge] if edge.any() else pts
     seg = np.linalg.norm(np.diff(np.vstack([chosen, chosen[:1]]).astype(float), axis=0),
@@ -108,7 +128,7 @@ def rim_samples(mask: np.ndarray, bbox: tuple[int, int, int, int], labels: np.nd
     idx = np.zeros(m, int) if total <= 0 else \
         np.searchsorted(arc, (np.arange(m) + 0.5) * total / m, side="right") - 1
     return Rim(chosen[idx].astype(np.float64) + 0.5, float(edge.mean()),
-               bool(on_border.any()), frozenset(neighbours))
+               bool(on_border.any()), neighbours)
 
 
 def own_vicinity(magnitude: np.ndarray, labels: np.ndarray, own: int, bbox: tuple[int, ...],

@@ -34,6 +34,7 @@ from roger_perception.activation import (
 )
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
+    LabelNeighbours,
     assemble,
     g_max,
     intensity_texture,
@@ -153,12 +154,13 @@ class Perception:
         for roi_id, obj in enumerate(seen):
             u0, v0, u1, v1 = obj.blob.bbox
             roi_labels[v0:v1, u0:u1][obj.blob.mask] = roi_id + 1
+        near = LabelNeighbours(roi_labels)
         for roi_id, obj in enumerate(seen):
             ta = time.perf_counter()
             bl = obj.blob
             position = obj.position
             own = roi_id + 1
-            rim = rim_samples(bl.mask, bl.bbox, roi_labels, own, cfg.samples_m)
+            rim = rim_samples(bl.mask, bl.bbox, near, own, cfg.samples_m)
             points = rim.points
             samples = []
             for mag, r in zip(magnitudes, self._vicinity, strict=True):
