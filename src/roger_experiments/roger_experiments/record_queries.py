@@ -23,6 +23,7 @@ import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -168,6 +169,84 @@ def read_csv(path: Path) -> list[Query]:
                              r["action"], int(r["focus"]), int(r["entry"]), r["final"] == "1",
                              r["object"], r["category"], feats, known))
     return out
+
+
+@dataclass
+class ReplayScore:
+    """How a memory decided the foci of one recorded run (labels score it).
+
+    Attributes:
+        run: (world, policy, seed).
+        identifications: Foci identified (non-final or final).
+        correct_identifications: Of them, identified as an address stored from an object of
+            the same category.
+        stores: Foci called new on their final trial (then stored).
+        correct_stores: Of them, stores of a category not yet in memory.
+        repeats_final: Final trials of a category already in memory.
+        false_new: Of them, called new.
+        novel_final: Final trials of a category not in memory.
+        false_identified: Of them, identified.
+        categories: Categories under the window in the run.
+    """
+
+    run: tuple[str, str, int]
+    identifications: int = 0
+    correct_identifications: int = 0
+    stores: int = 0
+    correct_stores: int = 0
+    repeats_final: int = 0
+    false_new: int = 0
+    novel_final: int = 0
+    false_identified: int = 0
+    categories: int = 0
+
+
+def replay(queries: Sequence[Query], memory_factory: Any) -> list[ReplayScore]:
+    """Replay recorded foci through fresh memories, one per run, as the straightforward
+    policy would: each look of a focus is matched in order (with the focus id) until one
+    is identified; a final trial called new is stored (with the focus id). The labels
+    only score it.
+
+    Args:
+        queries: Recorded queries (one or several runs).
+        memory_factory: Called with no argument per run; returns an AssociativeMemory.
+    """
+    runs: dict[tuple[str, str, int], dict[int, list[Query]]] = {}
+    for q in queries:
+        runs.setdefault((q.world, q.policy, q.seed), {}).setdefault(q.focus, []).append(q)
+    scores = []
+    for run, foci in runs.items():
+        memory = memory_factory()
+        category_of: dict[int, str] = {}
+        score = ReplayScore(run)
+        seen: set[str] = set()
+        for focus, looks in foci.items():
+            for q in looks:
+                if q.category:
+                    seen.add(q.category)
+                result = memory.match(q.features, q.known, q.final, focus_id=focus + 1)
+                in_memory = q.category != "" and q.category in category_of.values()
+                if q.final and q.category:
+                    if in_memory:
+                        score.repeats_final += 1
+                        score.false_new += result.outcome == MatchOutcome.NEW
+                    else:
+                        score.novel_final += 1
+                        score.false_identified += result.outcome == MatchOutcome.IDENTIFIED
+                if result.outcome == MatchOutcome.IDENTIFIED:
+                    score.identifications += 1
+                    score.correct_identifications += (
+                        q.category != "" and category_of.get(result.address) == q.category)
+                    break
+                if result.outcome == MatchOutcome.NEW:
+                    score.stores += 1
+                    score.correct_stores += q.category != "" and not in_memory
+                    category_of[memory.store(q.features, q.known, focus_id=focus + 1)] = \
+                        q.category
+                    break
+        score.categories = len(seen)
+        scores.append(score)
+    return scores
 
 
 def main(argv: Sequence[str] | None = None) -> None:
