@@ -5,9 +5,10 @@ Not a test. Run from the repository root::
     PYTHONPATH=src/roger_common:src/roger_memory python bench/bench_memory.py
 
 Each memory is preloaded with ``store_many`` (one retraining), then a match (median of
-``--matches`` noisy queries of stored objects) and a store of a new object (median of
-``--stores`` consecutive stores, each with its full replay retraining) are timed. Prints a
-table, then ``match_1000_vs_10`` (target <= 3) and ``store_1000_vs_10``.
+``--matches`` queries of stored objects, each moved by the calibrated repeat noise of the
+robot's looks) and a store of a new object (median of ``--stores`` consecutive stores,
+each with its full replay retraining) are timed. Prints a table, then
+``match_1000_vs_10`` (target <= 3) and ``store_1000_vs_10``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import torch
 from roger_common.types import FEATURE_DIM, MatchOutcome
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
+from roger_memory.network import student_t_noise
 
 
 def bench_size(n: int, matches: int, stores: int, seed: int) -> dict[str, float]:
@@ -29,7 +31,9 @@ def bench_size(n: int, matches: int, stores: int, seed: int) -> dict[str, float]
     rng = np.random.default_rng(seed)
     patterns = rng.random((n + stores, FEATURE_DIM)).astype(np.float32)
     known = np.ones((n + stores, FEATURE_DIM), bool)
-    memory = AssociativeMemory(MemoryConfig(), seed=seed)
+    config = MemoryConfig()
+    sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
+    memory = AssociativeMemory(config, seed=seed)
     t0 = time.perf_counter()
     memory.store_many(patterns[:n], known[:n])
     preload_s = time.perf_counter() - t0
@@ -37,7 +41,8 @@ def bench_size(n: int, matches: int, stores: int, seed: int) -> dict[str, float]
 
     match_times, identified = [], 0
     for i in rng.integers(0, n, matches):
-        q = np.clip(patterns[i] + rng.normal(0.0, 0.01, FEATURE_DIM), 0.0, 1.0)
+        noise = student_t_noise(rng, (1, FEATURE_DIM), config.noise_dof)[0] * sigma
+        q = np.clip(patterns[i] + noise, 0.0, 1.0)
         t0 = time.perf_counter()
         result = memory.match(q, known[i])
         match_times.append(time.perf_counter() - t0)

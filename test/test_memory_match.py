@@ -1,4 +1,10 @@
-"""Match and store in the associative memory: the three outcomes of section 4.2."""
+"""Match and store in the associative memory: the three outcomes of section 4.2.
+
+Synthetic objects with the robot's own noise: each query is a stored look moved by the
+calibrated repeat noise (per feature sqrt(2) sigma_f times a Student-t, MemoryConfig's
+feature_scale and noise_dof), not by a hand-picked Gaussian. Tests on features recorded
+from the simulator are in test_memory_recorded.py.
+"""
 
 from __future__ import annotations
 
@@ -15,35 +21,40 @@ from roger_common.types import (
     MemoryOp,
     MemoryRequest,
 )
+from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
+from roger_memory.network import student_t_noise
 
 ALL_KNOWN = np.ones(FEATURE_DIM, bool)
 W_UNKNOWN = ALL_KNOWN.copy()
 W_UNKNOWN[WEIGHT_INDEX] = False
-NOISE = 0.01
+CONFIG = MemoryConfig()
+SIGMA = np.sqrt(2.0) * np.asarray(CONFIG.feature_scale)
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _distinct_patterns(n: int, seed: int) -> np.ndarray:
-    x = np.random.default_rng(seed).random((n, FEATURE_DIM)).astype(np.float32)
-    rms = np.sqrt(((x[:, None] - x[None]) ** 2).mean(axis=2))
-    assert rms[~np.eye(n, dtype=bool)].min() > 0.1  # the patterns really are distinct
+    x = np.random.default_rng(seed).uniform(0.1, 0.9, (n, FEATURE_DIM)).astype(np.float32)
+    z = np.abs(x[:, None] - x[None]) / SIGMA
+    rms = np.sqrt((z ** 2).mean(axis=2))
+    assert n == 1 or rms[~np.eye(n, dtype=bool)].min() > 3 * CONFIG.identify_distance
     return x
 
 
-def _noisy(x: np.ndarray, rng: np.random.Generator, std: float = NOISE) -> np.ndarray:
-    return np.clip(x + rng.normal(0.0, std, x.shape), 0.0, 1.0)
+def _look(x: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """Another look at the object of ``x``: the calibrated repeat noise."""
+    noise = student_t_noise(rng, (1, FEATURE_DIM), CONFIG.noise_dof)[0] * SIGMA * scale
+    return np.clip(x + noise, 0.0, 1.0).astype(np.float32)
 
 
-def _table1(intensity: float, size: float, weight: float) -> np.ndarray:
-    """An object of Table 1: the same shape and texture, its own I, D and W."""
-    x = np.full(FEATURE_DIM, 0.3, np.float32)
-    x[[FEATURE_NAMES.index(n) for n in ("I1", "I2", "I3")]] = intensity
-    x[FEATURE_NAMES.index("D")] = size
-    x[WEIGHT_INDEX] = weight
-    return x
+def _moved(x: np.ndarray, distance: float, rng: np.random.Generator,
+           known: np.ndarray = ALL_KNOWN) -> np.ndarray:
+    """``x`` moved by an RMS z-distance ``distance`` in a random direction."""
+    d = rng.standard_normal(FEATURE_DIM) * known
+    d /= np.sqrt((d ** 2).sum() / known.sum())
+    return (x + d * distance * SIGMA).astype(np.float32)
 
 
 @pytest.fixture(scope="module")
@@ -55,47 +66,39 @@ def ten() -> tuple[AssociativeMemory, np.ndarray]:
     return memory, patterns
 
 
-@pytest.fixture(scope="module")
-def weight_pair() -> tuple[AssociativeMemory, np.ndarray]:
-    """Four objects; 1 and 2 differ only in weight (0.30 vs 0.55)."""
-    x = _distinct_patterns(4, seed=12)
-    x[2] = x[1]
-    x[1, WEIGHT_INDEX], x[2, WEIGHT_INDEX] = 0.30, 0.55
-    memory = AssociativeMemory(seed=1)
-    for p in x:
-        memory.store(p, ALL_KNOWN)
-    return memory, x
-
-
-@pytest.mark.parametrize("std", [0.0, 0.01, 0.02])
-def test_ten_stored_patterns_are_each_identified(ten, std: float) -> None:
+def test_repeat_looks_are_identified_at_the_calibrated_rate(ten) -> None:
+    """tau is the 95th percentile of the robot's own repeat looks: about 95 % of repeat
+    looks are taken for their object, and never for another one."""
     memory, patterns = ten
-    rng = np.random.default_rng(int(std * 1000))
-    assert memory.size == 10
-    for address, p in enumerate(patterns):
-        result = memory.match(_noisy(p, rng, std), ALL_KNOWN)
-        assert result.outcome == MatchOutcome.IDENTIFIED, (address, result)
-        assert result.address == address
-        assert memory.config.confidence_threshold <= result.confidence <= 1.0
-
-
-def test_unseen_pattern_is_not_identified(ten) -> None:
-    memory, patterns = ten
-    rng = np.random.default_rng(99)
+    rng = np.random.default_rng(1)
+    outcomes = []
     for _ in range(20):
-        unseen = rng.random(FEATURE_DIM)
-        if np.sqrt(((patterns - unseen) ** 2).mean(axis=1)).min() < 0.1:
-            continue
-        assert memory.match(unseen, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
-        final = memory.match(unseen, ALL_KNOWN, final_trial=True)
-        assert (final.outcome, final.address) == (MatchOutcome.NEW, -1)
+        for address, p in enumerate(patterns):
+            result = memory.match(_look(p, rng), ALL_KNOWN)
+            assert result.address == address
+            outcomes.append(result.outcome)
+    identified = outcomes.count(MatchOutcome.IDENTIFIED) / len(outcomes)
+    assert 0.88 <= identified <= 1.0, identified
+    assert set(outcomes) <= {MatchOutcome.IDENTIFIED, MatchOutcome.UNDETERMINED}
+
+
+def test_the_novel_unit_wins_beyond_the_acceptance_distance(ten) -> None:
+    memory, patterns = ten
+    rng = np.random.default_rng(2)
+    for p in patterns:
+        near = memory.decide(_moved(p, 0.5 * CONFIG.identify_distance, rng), ALL_KNOWN, True)
+        far = memory.decide(_moved(p, 2.0 * CONFIG.identify_distance, rng), ALL_KNOWN, True)
+        assert near.result.outcome == MatchOutcome.IDENTIFIED
+        assert (far.winner, far.result.outcome) == (-1, MatchOutcome.NEW)
+        assert memory.match(_moved(p, 2.0 * CONFIG.identify_distance, rng),
+                            ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
     assert memory.size == 10  # a NEW outcome does not store by itself
 
 
 def test_final_trial_is_never_undetermined(ten) -> None:
     memory, patterns = ten
     rng = np.random.default_rng(5)
-    queries = [_noisy(p, rng, 0.05) for p in patterns] + list(rng.random((10, FEATURE_DIM)))
+    queries = [_look(p, rng, 3.0) for p in patterns] + list(rng.random((10, FEATURE_DIM)))
     for q in queries:
         for known in (ALL_KNOWN, W_UNKNOWN):
             result = memory.match(q, known, final_trial=True)
@@ -103,64 +106,137 @@ def test_final_trial_is_never_undetermined(ten) -> None:
             assert (result.address >= 0) == (result.outcome == MatchOutcome.IDENTIFIED)
 
 
-def test_match_does_not_change_the_memory(ten) -> None:
+def test_a_match_that_identifies_nothing_changes_nothing(ten) -> None:
     memory, patterns = ten
-    weights = memory.network.output.weight.detach().clone()
-    memory.match(patterns[0], ALL_KNOWN)
-    memory.match(patterns[1], ALL_KNOWN, final_trial=True)
-    assert torch.equal(memory.network.output.weight, weights)
-    assert all(len(memory.exemplars(a)) == 1 for a in range(memory.size))
+    state = {k: v.clone() for k, v in memory.network.state_dict().items()}
+    revision = memory.revision
+    memory.match(1.0 - patterns[0], ALL_KNOWN)
+    memory.match(1.0 - patterns[1], ALL_KNOWN, final_trial=True)
+    for name, value in memory.network.state_dict().items():
+        assert torch.equal(value, state[name]), name
+    assert memory.revision == revision
 
 
-@pytest.mark.parametrize("which", [1, 2])
-def test_weight_only_difference_undetermined_then_told_apart(weight_pair, which: int) -> None:
-    memory, x = weight_pair
-    rng = np.random.default_rng(which)
-    q = _noisy(x[which], rng)
-    before = memory.match(np.where(W_UNKNOWN, q, 0.0), W_UNKNOWN)
-    assert before.outcome == MatchOutcome.UNDETERMINED
-    after = memory.match(q, ALL_KNOWN)
-    assert (after.outcome, after.address) == (MatchOutcome.IDENTIFIED, which)
-    final = memory.match(q, W_UNKNOWN, final_trial=True)
-    assert (final.outcome, final.address in (1, 2)) == (MatchOutcome.IDENTIFIED, True)
+def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None:
+    """Two objects that differ only in W: without W no non-final identification (vision
+    cannot exclude the twin); with W each is identified as itself; the final trial
+    decides on what is known."""
+    x = _distinct_patterns(3, seed=12)
+    x[2] = x[1]
+    x[1, WEIGHT_INDEX], x[2, WEIGHT_INDEX] = 0.15, 0.45
+    memory = AssociativeMemory(seed=1)
+    for p in x:
+        memory.store(p, ALL_KNOWN)
+    rng = np.random.default_rng(3)
+    for which in (1, 2):
+        for _ in range(10):
+            q = _look(x[which], rng)
+            before = memory.match(np.where(W_UNKNOWN, q, 0.0), W_UNKNOWN)
+            assert before.outcome == MatchOutcome.UNDETERMINED
+            after = memory.match(q, ALL_KNOWN)
+            assert after.outcome != MatchOutcome.IDENTIFIED or after.address == which
+            final = memory.match(q, ALL_KNOWN, final_trial=True)
+            assert final.outcome == MatchOutcome.NEW or final.address == which
+            final_w = memory.match(q, W_UNKNOWN, final_trial=True)
+            assert (final_w.outcome, final_w.address in (1, 2)) == (MatchOutcome.IDENTIFIED,
+                                                                    True)
 
 
-def test_other_objects_identified_with_weight_unknown(weight_pair) -> None:
-    memory, x = weight_pair
-    rng = np.random.default_rng(8)
-    for address in (0, 3):
-        result = memory.match(_noisy(x[address], rng), W_UNKNOWN)
-        assert (result.outcome, result.address) == (MatchOutcome.IDENTIFIED, address)
+def test_a_heavy_twin_of_a_stored_light_object_is_new() -> None:
+    light = _distinct_patterns(1, seed=13)[0]
+    light[WEIGHT_INDEX] = 0.15
+    memory = AssociativeMemory(seed=2)
+    memory.store(light, ALL_KNOWN)
+    heavy = light.copy()
+    heavy[WEIGHT_INDEX] = 0.55
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        q = _look(heavy, rng)
+        assert memory.match(np.where(W_UNKNOWN, q, 0), W_UNKNOWN).outcome == \
+            MatchOutcome.UNDETERMINED
+        assert memory.match(q, ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
 
 
 def test_unknown_weight_is_not_taken_as_zero() -> None:
-    memory = AssociativeMemory(seed=2)
-    x = _distinct_patterns(2, seed=13)
+    x = _distinct_patterns(2, seed=14)
     x[:, WEIGHT_INDEX] = 0.6
+    memory = AssociativeMemory(seed=2)
     for p in x:
-        memory.store(p, ALL_KNOWN)
+        memory.store(p, W_UNKNOWN)  # stored before any haptic improvement
     q = x[0].copy()
     q[WEIGHT_INDEX] = 0.0
     assert memory.match(q, W_UNKNOWN).address == 0
     assert memory.match(q, W_UNKNOWN).outcome == MatchOutcome.IDENTIFIED
-    assert memory.match(q, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
-    assert memory.match(q, ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
+    # W = 0 measured is another input than W unknown: the stored looks do not know W, so
+    # the query's W is left out, and the object is still object 0.
+    assert memory.match(q, ALL_KNOWN).address == 0
 
 
-def test_table1_objects_are_told_apart() -> None:
-    # Table 1 of the paper: perceived intensity, size and weight of objects 01-04.
-    objects = [_table1(0.83, 0.45, 0.72), _table1(0.65, 0.43, 0.51),
-               _table1(0.56, 0.44, 0.47), _table1(0.47, 0.44, 0.24)]
+def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
+    """A query equal to a stored look but for W, off by more than the veto yet within
+    the acceptance distance overall: the network would identify, the veto does not."""
+    x = _distinct_patterns(1, seed=15)[0]
     memory = AssociativeMemory(seed=3)
-    for i in (0, 1, 3):
-        memory.store(objects[i], ALL_KNOWN)
-    rng = np.random.default_rng(4)
-    for address, i in enumerate((0, 1, 3)):
-        result = memory.match(_noisy(objects[i], rng), ALL_KNOWN)
-        assert (result.outcome, result.address) == (MatchOutcome.IDENTIFIED, address)
-    for known in (ALL_KNOWN, W_UNKNOWN):  # object 03 is new, though close to 02
-        result = memory.match(_noisy(objects[2], rng), known, final_trial=True)
-        assert result.outcome == MatchOutcome.NEW
+    memory.store(x, ALL_KNOWN)
+    q = x.copy()
+    q[WEIGHT_INDEX] += 1.5 * CONFIG.veto[WEIGHT_INDEX]
+    decision = memory.decide(q, ALL_KNOWN, final_trial=True)
+    assert decision.winner == 0 and decision.vetoed
+    assert decision.distance < CONFIG.identify_distance
+    assert decision.result.outcome == MatchOutcome.NEW
+    assert memory.match(q, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
+    assert memory.stats.vetoes == 2
+
+
+def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:
+    x = _distinct_patterns(2, seed=16)
+    rng = np.random.default_rng(6)
+    memory = AssociativeMemory(seed=4)
+    shift, visual = _look(x[0], rng), _look(x[0], rng)
+    other = _look(x[1], rng)  # the focus slid onto another object for one look
+    haptic = _look(x[0], rng)
+    for q, k in ((shift, W_UNKNOWN), (other, W_UNKNOWN), (visual, W_UNKNOWN)):
+        memory.match(np.where(k, q, 0), k, focus_id=7)
+    memory.match(haptic, ALL_KNOWN, final_trial=True, focus_id=7)
+    address = memory.store(haptic, ALL_KNOWN, focus_id=7)
+    looks = memory.exemplars(address)
+    assert len(looks) == 3  # shift, visual, haptic; not the other object
+    assert memory.exemplar_known(address).all()  # W completed from the haptic look
+    np.testing.assert_allclose(looks[:, WEIGHT_INDEX], haptic[WEIGHT_INDEX])
+    np.testing.assert_allclose(looks[-1], haptic)
+    # Another focus id: only the store's own features.
+    assert len(memory.exemplars(memory.store(other, ALL_KNOWN, focus_id=8))) == 1
+
+
+def test_refinement_reaches_one_acceptance_radius_and_does_not_chain() -> None:
+    """Objects on a line 0.8 tau apart: B is identified as A and refines A (a stored
+    look of A accepts it); C is identified through B's look, but does not refine A (no
+    stored look of A accepts it); D, 0.8 tau beyond C, is then new."""
+    tau = CONFIG.identify_distance
+    rng = np.random.default_rng(8)
+    a = _distinct_patterns(1, seed=17)[0]
+    step = _moved(a, 0.8 * tau, rng) - a
+    b, c, d = a + step, a + 2 * step, a + 3 * step
+    memory = AssociativeMemory(seed=5)
+    memory.store(a, ALL_KNOWN, focus_id=1)
+    rb = memory.match(b, ALL_KNOWN, final_trial=True, focus_id=2)
+    assert (rb.outcome, rb.address, len(memory.exemplars(0))) == (
+        MatchOutcome.IDENTIFIED, 0, 2)
+    rc = memory.match(c, ALL_KNOWN, final_trial=True, focus_id=3)
+    assert (rc.outcome, len(memory.exemplars(0))) == (MatchOutcome.IDENTIFIED, 2)
+    rd = memory.match(d, ALL_KNOWN, final_trial=True, focus_id=4)
+    assert rd.outcome == MatchOutcome.NEW
+    assert memory.stats.refinements == 1
+
+
+def test_refinement_is_capped() -> None:
+    x = _distinct_patterns(1, seed=18)[0]
+    memory = AssociativeMemory(MemoryConfig(refine_looks=3), seed=6)
+    memory.store(x, ALL_KNOWN, focus_id=1)
+    rng = np.random.default_rng(9)
+    for focus in range(2, 12):
+        memory.match(_look(x, rng, 0.3), ALL_KNOWN, final_trial=True, focus_id=focus)
+    assert len(memory.exemplars(0)) == 3
 
 
 def test_empty_memory() -> None:
@@ -174,16 +250,15 @@ def test_empty_memory() -> None:
 def test_hundred_stored_objects_all_recalled() -> None:
     patterns = np.random.default_rng(21).random((100, FEATURE_DIM)).astype(np.float32)
     memory = AssociativeMemory(seed=4)
-    for p in patterns:
-        memory.store(p, ALL_KNOWN)
+    memory.store_many(patterns, np.ones((100, FEATURE_DIM), bool))
     rng = np.random.default_rng(22)
-    results = [memory.match(_noisy(p, rng), ALL_KNOWN) for p in patterns]
+    results = [memory.match(_look(p, rng, 0.5), ALL_KNOWN) for p in patterns]
     assert [r.address for r in results] == list(range(100))
-    assert all(r.outcome == MatchOutcome.IDENTIFIED for r in results)
+    assert sum(r.outcome == MatchOutcome.IDENTIFIED for r in results) >= 95
 
 
 def test_same_seed_same_memory_other_seed_differs() -> None:
-    x = _distinct_patterns(3, seed=14)
+    x = _distinct_patterns(3, seed=19)
 
     def build(seed: int) -> AssociativeMemory:
         memory = AssociativeMemory(seed=seed)
@@ -192,14 +267,15 @@ def test_same_seed_same_memory_other_seed_differs() -> None:
         return memory
 
     a, b, c = build(7), build(7), build(8)
-    assert torch.equal(a.network.output.weight, b.network.output.weight)
-    assert not torch.equal(a.network.output.weight, c.network.output.weight)
+    assert torch.equal(a.network.centres, b.network.centres)
+    assert torch.equal(a.network.log_scale, b.network.log_scale)
+    assert not torch.equal(a.network.log_scale, c.network.log_scale)
 
 
 def test_handle_store_and_match() -> None:
     memory = AssociativeMemory(seed=5)
-    x = _distinct_patterns(2, seed=15)
-    replies = [memory.handle(MemoryRequest(i, MemoryOp.STORE, p, ALL_KNOWN))
+    x = _distinct_patterns(2, seed=20)
+    replies = [memory.handle(MemoryRequest(i, MemoryOp.STORE, p, ALL_KNOWN, focus_id=i + 1))
                for i, p in enumerate(x)]
     assert [(r.outcome, r.address, r.confidence) for r in replies] == [
         (MatchOutcome.NEW, 0, 1.0), (MatchOutcome.NEW, 1, 1.0)]
@@ -208,22 +284,33 @@ def test_handle_store_and_match() -> None:
     assert (match.outcome, match.address) == (MatchOutcome.IDENTIFIED, 1)
     final = memory.handle(MemoryRequest(3, MemoryOp.MATCH, 1.0 - x[1], ALL_KNOWN, True))
     assert final.outcome == MatchOutcome.NEW
-
-
-def test_add_exemplar_refines_up_to_the_cap() -> None:
-    memory = AssociativeMemory(seed=6)
-    x = _distinct_patterns(2, seed=16)
-    memory.store(x[0], W_UNKNOWN)
-    memory.store(x[1], ALL_KNOWN)
-    assert memory.add_exemplar(0, x[0], ALL_KNOWN)
-    assert len(memory.exemplars(0)) == 2
-    assert memory.exemplar_known(0)[1, WEIGHT_INDEX]
-    for _ in range(memory.config.max_exemplars_per_address - 2):
-        assert memory.add_exemplar(0, x[0], ALL_KNOWN)
-    assert not memory.add_exemplar(0, x[0], ALL_KNOWN)
-    assert memory.match(x[0], ALL_KNOWN).address == 0
     with pytest.raises(IndexError):
         memory.exemplars(2)
+
+
+def test_table1_objects_with_their_weights() -> None:
+    """The paper's Table 1 (perceived I, D, W of objects 01-04, the rest equal): 01, 02,
+    04 are each identified as themselves; 03 (grey 69 next to 02's 79) is within the
+    robot's category-level intensity spread of 02, so only its weight (0.47 vs 0.51,
+    beyond the veto) makes it new; with W unknown vision cannot exclude 02 or 04."""
+    def table1(intensity: float, size: float, weight: float) -> np.ndarray:
+        x = np.full(FEATURE_DIM, 0.3, np.float32)
+        x[[FEATURE_NAMES.index(n) for n in ("I1", "I2", "I3")]] = intensity
+        x[FEATURE_NAMES.index("D")] = size
+        x[WEIGHT_INDEX] = weight
+        return x
+
+    objects = [table1(0.83, 0.45, 0.72), table1(0.65, 0.43, 0.51),
+               table1(0.56, 0.44, 0.47), table1(0.47, 0.44, 0.24)]
+    memory = AssociativeMemory(seed=3)
+    for i in (0, 1, 3):
+        memory.store(objects[i], ALL_KNOWN)
+    for address, i in enumerate((0, 1, 3)):
+        result = memory.match(objects[i], ALL_KNOWN)
+        assert (result.outcome, result.address) == (MatchOutcome.IDENTIFIED, address)
+    assert memory.match(objects[2], ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
+    assert memory.match(objects[2], W_UNKNOWN).outcome == MatchOutcome.UNDETERMINED
+    assert memory.match(objects[2], W_UNKNOWN, final_trial=True).address in (1, 2)
 
 
 @pytest.mark.parametrize(("features", "known"), [

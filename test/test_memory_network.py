@@ -1,4 +1,4 @@
-"""Unit tests of the BP network with winner-take-all and of MemoryConfig."""
+"""Unit tests of the radial BP network with winner-take-all and of MemoryConfig."""
 
 from __future__ import annotations
 
@@ -10,41 +10,74 @@ from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_DIM, WEIGHT_INDEX
 from roger_memory.config import MemoryConfig
 from roger_memory.network import (
-    INPUT_DIM,
+    SILENT,
     AssociativeNetwork,
-    encode,
+    student_t_noise,
     train_replay,
     winner_take_all,
 )
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
+CONFIG = MemoryConfig()
 
 
-def _net(seed: int = 0, addresses: int = 0) -> AssociativeNetwork:
-    net = AssociativeNetwork(MemoryConfig().hidden_sizes, torch.Generator().manual_seed(seed))
-    for a in range(addresses):
-        net.add_address(torch.Generator().manual_seed(seed + 100 + a))
+def _net(looks: np.ndarray, known: np.ndarray, addresses: list[int]) -> AssociativeNetwork:
+    net = AssociativeNetwork(CONFIG.feature_scale, CONFIG.identify_distance,
+                             CONFIG.min_common_features)
+    for a in range(max(addresses) + 1):
+        net.add_address()
+    for x, k, a in zip(looks, known, addresses, strict=True):
+        net.add_units(x[None], k[None], a)
     return net
 
 
-def test_encode_tells_unknown_from_zero() -> None:
+def test_unit_activation_is_the_rms_z_over_common_known_features() -> None:
+    rng = np.random.default_rng(0)
+    looks = rng.random((3, FEATURE_DIM)).astype(np.float32)
+    known = np.ones((3, FEATURE_DIM), bool)
+    known[1, WEIGHT_INDEX] = False
+    net = _net(looks, known, [0, 1, 1])
+    q = rng.random(FEATURE_DIM).astype(np.float32)
+    kq = np.ones(FEATURE_DIM, bool)
+    kq[2] = False
+    d2 = net.unit_distances(torch.from_numpy(q[None]),
+                            torch.from_numpy(kq[None]))[0].detach().numpy()
+    sigma = np.sqrt(2.0) * np.asarray(CONFIG.feature_scale)
+    for j in range(3):
+        common = known[j] & kq
+        expected = (((q - looks[j]) / sigma) ** 2)[common].mean()
+        assert d2[j] == pytest.approx(expected, rel=1e-4)
+    per_address = net.address_distances(torch.from_numpy(d2[None]))[0].detach().numpy()
+    np.testing.assert_allclose(per_address, [d2[0], min(d2[1], d2[2])], rtol=1e-6)
+
+
+def test_unknown_is_left_out_never_taken_as_zero() -> None:
     x = np.full(FEATURE_DIM, 0.5, np.float32)
     x[WEIGHT_INDEX] = 0.7
-    known = np.ones(FEATURE_DIM, bool)
-    unknown_w = known.copy()
-    unknown_w[WEIGHT_INDEX] = False
+    net = _net(x[None], np.ones((1, FEATURE_DIM), bool), [0])
+    w_unknown = np.ones(FEATURE_DIM, bool)
+    w_unknown[WEIGHT_INDEX] = False
     zero_w = x.copy()
     zero_w[WEIGHT_INDEX] = 0.0
+    with torch.no_grad():
+        unknown = net.unit_distances(torch.from_numpy(zero_w[None]),
+                                     torch.from_numpy(w_unknown[None]))
+        zero = net.unit_distances(torch.from_numpy(zero_w[None]),
+                                  torch.from_numpy(np.ones((1, FEATURE_DIM), bool)))
+    assert float(unknown) == pytest.approx(0.0, abs=1e-3)
+    assert float(zero) > 100.0
 
-    enc_unknown = encode(x, unknown_w)
-    enc_zero = encode(zero_w, known)
 
-    assert enc_unknown.shape == (1, INPUT_DIM)
-    assert enc_unknown[0, WEIGHT_INDEX] == 0.0
-    assert enc_unknown[0, FEATURE_DIM + WEIGHT_INDEX] == 0.0
-    assert enc_zero[0, FEATURE_DIM + WEIGHT_INDEX] == 1.0
-    assert not np.array_equal(enc_unknown, enc_zero)
-    np.testing.assert_allclose(encode(x, known)[0, :FEATURE_DIM], x)
+def test_a_unit_with_too_few_common_features_is_silent() -> None:
+    x = np.full((1, FEATURE_DIM), 0.5, np.float32)
+    net = _net(x, np.ones((1, FEATURE_DIM), bool), [0])
+    few = np.zeros(FEATURE_DIM, bool)
+    few[:CONFIG.min_common_features - 1] = True
+    with torch.no_grad():
+        d2 = net.unit_distances(torch.from_numpy(x), torch.from_numpy(few[None]))
+    assert float(d2) == SILENT
+    winner, _, _, _ = net.recall(x[0], few)
+    assert winner == 0  # the novel unit
 
 
 def test_winner_take_all_picks_largest_output_with_its_share() -> None:
@@ -56,65 +89,88 @@ def test_winner_take_all_picks_largest_output_with_its_share() -> None:
     assert 0.0 < confidence < 1.0
 
 
-def test_add_address_keeps_old_units_and_grows_output() -> None:
-    net = _net(addresses=3)
-    before_w = net.output.weight.detach().clone()
-    before_b = net.output.bias.detach().clone()
-    hidden_before = [p.detach().clone() for p in net.hidden.parameters()]
+def test_growing_keeps_the_old_units_and_outputs() -> None:
+    rng = np.random.default_rng(1)
+    looks = rng.random((3, FEATURE_DIM)).astype(np.float32)
+    net = _net(looks, np.ones((3, FEATURE_DIM), bool), [0, 1, 2])
+    with torch.no_grad():
+        net.bias += torch.tensor([0.1, 0.2, 0.3])
+    centres, bias = net.centres.detach().clone(), net.bias.detach().clone()
+    assert net.add_address() == 3
+    net.add_units(rng.random((2, FEATURE_DIM)), np.ones((2, FEATURE_DIM), bool), 3)
+    assert (net.n_addresses, net.n_units) == (4, 5)
+    assert torch.equal(net.centres[:3], centres)
+    assert torch.equal(net.bias[:3], bias)
+    assert net.unit_address.tolist() == [0, 1, 2, 3, 3]
 
-    new = net.add_address(torch.Generator().manual_seed(7))
 
-    assert new == 3
-    assert net.n_addresses == 4
-    assert torch.equal(net.output.weight[:3], before_w)
-    assert torch.equal(net.output.bias[:3], before_b)
-    for p, q in zip(net.hidden.parameters(), hidden_before, strict=True):
-        assert torch.equal(p, q)
+def test_empty_network_answers_with_the_novel_unit() -> None:
+    net = AssociativeNetwork(CONFIG.feature_scale, CONFIG.identify_distance, 6)
+    winner, confidence, shares, d2 = net.recall(np.zeros(FEATURE_DIM), np.ones(FEATURE_DIM))
+    assert (winner, confidence, shares.size, d2.size) == (0, 1.0, 1, 0)
 
 
-def test_init_is_seeded_and_leaves_global_rng_alone() -> None:
+def test_untrained_copy_has_the_shape_but_not_the_answers() -> None:
+    rng = np.random.default_rng(2)
+    looks = rng.random((4, FEATURE_DIM)).astype(np.float32)
+    net = _net(looks, np.ones((4, FEATURE_DIM), bool), [0, 1, 2, 3])
     state = torch.random.get_rng_state()
-    a, b, c = _net(seed=1, addresses=2), _net(seed=1, addresses=2), _net(seed=2, addresses=2)
+    copy = net.untrained_copy(torch.Generator().manual_seed(0))
     assert torch.equal(torch.random.get_rng_state(), state)
-    for (_, pa), (_, pb) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
-        assert torch.equal(pa, pb)
-    assert not torch.equal(a.output.weight, c.output.weight)
-
-
-def test_empty_network_has_no_winner() -> None:
-    winner, confidence, shares = _net().recall(np.zeros(FEATURE_DIM), np.ones(FEATURE_DIM))
-    assert (winner, confidence, shares.size) == (-1, 0.0, 0)
+    for (name, a), (_, b) in zip(net.state_dict().items(), copy.state_dict().items(),
+                                 strict=True):
+        assert a.shape == b.shape, name
+    assert not torch.equal(net.centres, copy.centres)
+    winners = [net.recall(x, np.ones(FEATURE_DIM, bool))[0] for x in looks]
+    assert winners == [1, 2, 3, 4]
 
 
 def _train(seed: int) -> tuple[AssociativeNetwork, np.ndarray, np.ndarray, int]:
-    rng = np.random.default_rng(3)
-    x = rng.random((6, FEATURE_DIM)).astype(np.float32)
+    x = np.random.default_rng(3).random((6, FEATURE_DIM)).astype(np.float32)
     k = np.ones_like(x, bool)
-    net = _net(addresses=6)
-    steps = train_replay(net, x, k, np.arange(6), 5, MemoryConfig(), np.random.default_rng(seed))
+    net = _net(x, k, list(range(6)))
+    steps = train_replay(net, x, k, np.arange(6), 5, CONFIG, np.random.default_rng(seed))
     return net, x, k, steps
 
 
-def test_train_replay_recalls_every_exemplar_with_confidence() -> None:
+def test_train_replay_recalls_every_look_with_confidence() -> None:
     net, x, k, steps = _train(seed=0)
-    cfg = MemoryConfig()
-    assert cfg.train_steps <= steps <= cfg.max_train_steps
+    assert CONFIG.train_steps <= steps <= CONFIG.max_train_steps
     shares = net.shares(x, k)
-    np.testing.assert_array_equal(shares.argmax(axis=1), np.arange(6))
-    assert shares[np.arange(6), np.arange(6)].min() >= cfg.recall_confidence
+    np.testing.assert_array_equal(shares.argmax(axis=1), np.arange(1, 7))
+    assert shares[np.arange(6), np.arange(1, 7)].min() >= CONFIG.recall_confidence
+    # Training keeps the calibrated metric (the prior) while sharpening the outputs.
+    np.testing.assert_allclose(net.scale, CONFIG.feature_scale, rtol=0.25)
+    assert net.tau == pytest.approx(CONFIG.identify_distance, rel=0.25)
 
 
 def test_train_replay_is_deterministic_for_a_seed() -> None:
     a, *_ = _train(seed=4)
     b, *_ = _train(seed=4)
     c, *_ = _train(seed=5)
-    assert torch.equal(a.output.weight, b.output.weight)
-    assert not torch.equal(a.output.weight, c.output.weight)
+    assert torch.equal(a.log_scale, b.log_scale) and torch.equal(a.centres, b.centres)
+    assert not torch.equal(a.log_scale, c.log_scale)
+
+
+def test_student_t_noise_has_a_heavier_tail_than_a_gaussian() -> None:
+    rng = np.random.default_rng(6)
+    t = student_t_noise(rng, (20000, FEATURE_DIM), 5.0)
+    g = rng.standard_normal((20000, FEATURE_DIM))
+    rms_t, rms_g = np.sqrt((t ** 2).mean(axis=1)), np.sqrt((g ** 2).mean(axis=1))
+    assert np.median(rms_t) == pytest.approx(np.median(rms_g), rel=0.2)
+    assert np.quantile(rms_t, 0.99) > 1.4 * np.quantile(rms_g, 0.99)
 
 
 @pytest.mark.parametrize(("field", "value"), [
-    ("hidden_sizes", ()),
-    ("hidden_sizes", (0,)),
+    ("feature_scale", (0.01,) * (FEATURE_DIM - 1)),
+    ("feature_scale", (0.0,) * FEATURE_DIM),
+    ("veto", (float("nan"),) * FEATURE_DIM),
+    ("identify_distance", 0.0),
+    ("noise_dof", -1.0),
+    ("min_common_features", 0),
+    ("min_common_features", FEATURE_DIM + 1),
+    ("identify_share", 1.5),
+    ("refine_looks", 0),
     ("learning_rate", 0.0),
     ("learning_rate", float("nan")),
     ("batch_size", 0),
@@ -122,14 +178,11 @@ def test_train_replay_is_deterministic_for_a_seed() -> None:
     ("max_train_steps", 10),
     ("recall_confidence", 1.5),
     ("new_fraction", -0.1),
-    ("train_noise_std", -1.0),
+    ("novel_fraction", 1.0),
+    ("novel_far", 0.5),
+    ("prior_weight", -1.0),
     ("unknown_feature_prob", 2.0),
     ("maskable_features", ("Z",)),
-    ("acceptance_distance", 0.0),
-    ("max_component_difference", -0.1),
-    ("ambiguity_margin", -0.01),
-    ("confidence_threshold", 1.1),
-    ("max_exemplars_per_address", 0),
 ])
 def test_config_rejects_bad_value_naming_field(field: str, value: object) -> None:
     with pytest.raises(ConfigError, match=field):
@@ -137,7 +190,7 @@ def test_config_rejects_bad_value_naming_field(field: str, value: object) -> Non
 
 
 def test_config_round_trips_through_dict() -> None:
-    cfg = MemoryConfig(hidden_sizes=(32, 16), acceptance_distance=0.05)
+    cfg = MemoryConfig(identify_distance=2.5, veto=(0.5,) * FEATURE_DIM)
     assert MemoryConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match="bogus"):
         MemoryConfig.from_dict({"bogus": 1})

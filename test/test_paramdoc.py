@@ -99,13 +99,13 @@ def test_params_file_sets_every_node(no_leaks, context, tmp_path):
                .replace("    scale: 2", "    scale: 3")
                .replace("    image_size: 128", "    image_size: 96")
                .replace("    samples_m: 32", "    samples_m: 16")
-               .replace("    hidden_sizes: [64]", "    hidden_sizes: [32, 16]"))
+               .replace('    maskable_features: ["W"]', '    maskable_features: ["W", "D"]'))
     path = tmp_path / "params.yaml"
     path.write_text(changed)
     expected = {"roger_attention": {"policy": "qlearning", "qlearning.alpha": 0.25},
                 "roger_view": {"scale": 3}, "roger_sim": {"image_size": 96},
                 "roger_perception": {"samples_m": 16},
-                "roger_memory": {"hidden_sizes": [32, 16]}}
+                "roger_memory": {"maskable_features": ["W", "D"]}}
     for name, values in expected.items():
         node = _build(name, context, ["--ros-args", "--params-file", str(path)])
         try:

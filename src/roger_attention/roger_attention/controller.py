@@ -195,6 +195,7 @@ class AttentionController:
         self._visual_left = 0
         self._haptic_left = 0
         self._focus_address = -1
+        self._focus_id = 0  # goal id of the focus's shift: memory groups its looks by it
         self._pending: _Pending | None = None
         self._next_goal_id = 1
         self._next_request_id = 1
@@ -349,10 +350,13 @@ class AttentionController:
         if action is Action.MAP_UPDATE:
             if state.novelty:
                 store = MemoryRequest(self._take_request_id(), MemoryOp.STORE,
-                                      entry.features.copy(), entry.known.copy())
+                                      entry.features.copy(), entry.known.copy(),
+                                      focus_id=self._focus_id)
         else:
             goal = Goal(self._next_goal_id, action, entry.position)
             self._next_goal_id += 1
+            if action is Action.ATTENTION_SHIFT:
+                self._focus_id = goal.goal_id
         final = self._visual_left <= 0 and self._haptic_left <= 0
         plan = CyclePlan(cycle, action, goal, store, entry.entry_id, state.bits)
         self._pending = _Pending(plan, state, self.spatial_map.frame, final)
@@ -373,7 +377,8 @@ class AttentionController:
         if entry is None or entry.last_frame <= pending.frame:
             return None
         return MemoryRequest(self._take_request_id(), MemoryOp.MATCH, entry.features.copy(),
-                             entry.known.copy(), final_trial=pending.final_trial)
+                             entry.known.copy(), final_trial=pending.final_trial,
+                             focus_id=self._focus_id)
 
     def end_cycle(self, result: MatchResult | None, now: float) -> CycleRecord:
         """Close the cycle: FSM transition, reward, Q update, counters, interest.

@@ -275,7 +275,7 @@ def msg_to_request(msg: MemoryRequestMsg) -> MemoryRequest:
         raise MessageError(f"request {msg.request_id}: features outside [0, 1]")
     return MemoryRequest(request_id=int(msg.request_id), op=op,
                          features=np.clip(np.nan_to_num(features), 0.0, 1.0), known=known,
-                         final_trial=bool(msg.final_trial))
+                         final_trial=bool(msg.final_trial), focus_id=int(msg.focus_id))
 
 
 def request_to_msg(req: MemoryRequest, stamp: float) -> MemoryRequestMsg:
@@ -283,7 +283,8 @@ def request_to_msg(req: MemoryRequest, stamp: float) -> MemoryRequestMsg:
     return MemoryRequestMsg(header=Header(stamp=seconds_to_time(stamp)),
                             request_id=int(req.request_id), op=int(req.op),
                             features=[float(v) for v in req.features],
-                            known=[bool(k) for k in req.known], final_trial=req.final_trial)
+                            known=[bool(k) for k in req.known], final_trial=req.final_trial,
+                            focus_id=int(req.focus_id))
 
 
 def result_to_msg(request_id: int, op: MemoryOp, result: MatchResult, memory_size: int,

@@ -256,6 +256,8 @@ class MemoryRequest:
         known: FEATURE_DIM booleans; unknown features are ignored, not taken as 0.
         final_trial: For MATCH: all improvement trials are used up, so the memory must
             decide between IDENTIFIED and NEW (never UNDETERMINED).
+        focus_id: The focus (attention shift) the features were taken in; the memory
+            groups the looks of one focus by it (a STORE keeps them all). 0: unknown.
     """
 
     request_id: int
@@ -263,6 +265,7 @@ class MemoryRequest:
     features: np.ndarray
     known: np.ndarray
     final_trial: bool = False
+    focus_id: int = 0
 
 
 @dataclass

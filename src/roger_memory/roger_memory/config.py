@@ -14,8 +14,19 @@ from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_NAMES
 
 #: Fields that fix the shape of the network; a memory file is only compatible with a
-#: configuration that agrees on them.
-ARCHITECTURE_FIELDS: tuple[str, ...] = ("hidden_sizes",)
+#: configuration that agrees on them (none: the radial network's shape is the stored looks).
+ARCHITECTURE_FIELDS: tuple[str, ...] = ()
+
+#: Calibration of the shipped defaults (docs/memory.md, "Calibration"): measured by
+#: roger_memory.calibration.calibrate on test/data/memory_queries.csv, the robot's own
+#: looks at the six shipped worlds, without their labels; test_memory_calibration.py
+#: checks that the file still gives these values.
+CALIBRATED_FEATURE_SCALE: tuple[float, ...] = (
+    0.0263, 0.0342, 0.0432, 0.0048, 0.0041, 0.0050, 0.0296, 0.0237, 0.0234, 0.0047, 0.0106)
+CALIBRATED_IDENTIFY_DISTANCE: float = 2.17
+CALIBRATED_VETO: tuple[float, ...] = (
+    0.277, 0.304, 0.316, 0.051, 0.058, 0.060, 0.469, 0.448, 0.425, 0.088, 0.035)
+CALIBRATED_NOISE_DOF: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -23,77 +34,107 @@ class MemoryConfig:
     """Configuration of :class:`roger_memory.memory.AssociativeMemory`.
 
     Attributes:
-        hidden_sizes: Units of each hidden layer of the BP network (tanh).
+        feature_scale: Per feature (FEATURE_NAMES order), the spread sigma_f of one look of
+            a category around another look of it (calibrated, docs/memory.md); the initial
+            scale of the network's radial units.
+        identify_distance: Acceptance distance tau: the RMS over the common known
+            features of z_f = difference / (sqrt(2) sigma_f) within which a look counts as
+            a repeat (calibrated); the initial bias of the network's novel unit.
+        noise_dof: Degrees of freedom of the Student-t repeat noise the replay adds
+            (calibrated: the heaviness of the tail of the robot's own repeat looks).
+        veto: Per feature, the largest difference between a query and the winner's nearest
+            look that can still be an identification (calibrated: never seen between two
+            looks of one object); a larger one vetoes the network's identification.
+        min_common_features: Fewest features known both in the query and in a stored look
+            for that look's unit to answer.
+        identify_share: Smallest winner-take-all share of the winning address for a
+            non-final identification.
+        refine_looks: Looks an address may hold at most (its store's looks plus looks of
+            later identifications of it, see docs/memory.md).
         learning_rate: Adam step size of the supervised learning module.
         batch_size: Samples per replay step.
         train_steps: Replay steps always taken after a store (a fixed budget, so that a
             store costs about the same at 10 and at 1,000 objects).
         check_every: After ``train_steps``, training goes on in blocks of this many steps
-            until every stored exemplar is recalled (see ``recall_confidence``).
+            until every stored look is recalled (see ``recall_confidence``).
         max_train_steps: Cap on the replay steps of one store.
-        recall_confidence: An exemplar counts as recalled (ending training) when, with its
-            own known mask, its address wins with at least this softmax share.
-        new_fraction: Share of each replay batch drawn from the address being learned;
-            the rest replays every stored exemplar uniformly.
-        train_noise_std: Std of the Gaussian noise added to replayed exemplars, so the
-            network tolerates the noise of real features.
+        recall_confidence: A stored look counts as recalled (ending training) when, with
+            its own known mask, its address wins with at least this softmax share.
+        new_fraction: Share of the repeats of each replay batch drawn from the address
+            being learned; the rest replays every stored look uniformly.
+        novel_fraction: Share of each replay batch that is synthetic novel samples (the
+            novel unit's target).
+        novel_near: Novel samples lie at least this many times tau from a stored look.
+        novel_far: Novel samples lie at most this many times tau from a stored look.
+        prior_weight: Weight of the pull of centres towards their stored looks and of the
+            scales and tau towards the calibration.
         unknown_feature_prob: Probability that a replayed sample has each feature named
             in ``maskable_features`` turned unknown, so that the network also answers
             before a haptic improvement.
         maskable_features: Features that may be unknown at match time (FEATURE_NAMES).
-        acceptance_distance: Largest root-mean-square difference, over the features known
-            both in the query and in an exemplar, for the exemplar to match.
-        max_component_difference: Largest difference of any single known feature for an
-            exemplar to match (catches objects that differ in one feature only).
-        ambiguity_margin: A non-final match is undetermined when another address matches
-            within this much RMS distance of the best one.
-        confidence_threshold: Smallest winner-take-all confidence (softmax share of the
-            winner) for a non-final identification.
-        max_exemplars_per_address: Exemplars kept per address by ``add_exemplar``.
     """
 
-    hidden_sizes: tuple[int, ...] = field(default=(64,), metadata={
-        "doc": "Units of each tanh hidden layer of the BP network"})
-    learning_rate: float = field(default=0.01, metadata={
+    feature_scale: tuple[float, ...] = field(default=CALIBRATED_FEATURE_SCALE, metadata={
+        "doc": "Calibrated spread of one look of a category, per feature"})
+    identify_distance: float = field(default=CALIBRATED_IDENTIFY_DISTANCE, metadata={
+        "doc": "Calibrated acceptance distance tau (RMS z over common features)"})
+    noise_dof: float = field(default=CALIBRATED_NOISE_DOF, metadata={
+        "doc": "Calibrated Student-t degrees of freedom of the replay noise"})
+    veto: tuple[float, ...] = field(default=CALIBRATED_VETO, metadata={
+        "doc": "Calibrated largest per-feature difference of an identification"})
+    min_common_features: int = field(default=6, metadata={
+        "doc": "Fewest common known features for a stored look to answer"})
+    identify_share: float = field(default=0.5, metadata={
+        "doc": "Smallest winner share for a non-final identification"})
+    refine_looks: int = field(default=12, metadata={
+        "doc": "Looks an address may hold at most"})
+    learning_rate: float = field(default=0.02, metadata={
         "doc": "Adam step size of the supervised learning module"})
     batch_size: int = field(default=128, metadata={
-        "doc": "Exemplars per replay step"})
-    train_steps: int = field(default=50, metadata={
+        "doc": "Samples per replay step"})
+    train_steps: int = field(default=40, metadata={
         "doc": "Replay steps always taken after a store"})
-    check_every: int = field(default=25, metadata={
-        "doc": "Then more steps in blocks of this many until every exemplar is recalled"})
-    max_train_steps: int = field(default=1000, metadata={
+    check_every: int = field(default=20, metadata={
+        "doc": "Then more steps in blocks of this many until every look is recalled"})
+    max_train_steps: int = field(default=400, metadata={
         "doc": "Cap on the replay steps of one store"})
     recall_confidence: float = field(default=0.75, metadata={
-        "doc": "Winner share each stored exemplar must reach to end training"})
+        "doc": "Winner share each stored look must reach to end training"})
     new_fraction: float = field(default=0.1, metadata={
-        "doc": "Share of each replay batch drawn from the object just stored"})
-    train_noise_std: float = field(default=0.02, metadata={
-        "doc": "Std of the noise added to replayed exemplars"})
+        "doc": "Share of the repeats drawn from the object just stored"})
+    novel_fraction: float = field(default=0.25, metadata={
+        "doc": "Share of each replay batch that is synthetic novel samples"})
+    novel_near: float = field(default=1.0, metadata={
+        "doc": "Novel samples lie at least this many tau from a stored look"})
+    novel_far: float = field(default=3.0, metadata={
+        "doc": "Novel samples lie at most this many tau from a stored look"})
+    prior_weight: float = field(default=1.0, metadata={
+        "doc": "Pull of centres, scales and tau towards stored looks and calibration"})
     unknown_feature_prob: float = field(default=0.5, metadata={
         "doc": "Probability that a replayed maskable feature is made unknown"})
     maskable_features: tuple[str, ...] = field(default=("W",), metadata={
         "doc": "Features that may be unknown at match time (FEATURE_NAMES)"})
-    acceptance_distance: float = field(default=0.04, metadata={
-        "doc": "Largest RMS difference over common known features for a match"})
-    max_component_difference: float = field(default=0.12, metadata={
-        "doc": "Largest difference of any one known feature for a match"})
-    ambiguity_margin: float = field(default=0.02, metadata={
-        "doc": "Undetermined when another address matches within this RMS distance"})
-    confidence_threshold: float = field(default=0.5, metadata={
-        "doc": "Smallest winner-take-all share for a non-final identification"})
-    max_exemplars_per_address: int = field(default=8, metadata={
-        "doc": "Exemplars kept per address by add_exemplar"})
 
     def __post_init__(self) -> None:
-        hidden = tuple(self.hidden_sizes)
-        if not hidden or any(not isinstance(h, int) or h < 1 for h in hidden):
-            _fail("hidden_sizes", self.hidden_sizes, "a non-empty tuple of positive ints")
-        object.__setattr__(self, "hidden_sizes", hidden)
         object.__setattr__(self, "maskable_features", tuple(self.maskable_features))
         for name in self.maskable_features:
             if name not in FEATURE_NAMES:
                 _fail("maskable_features", self.maskable_features, f"names in {FEATURE_NAMES}")
+        for name in ("feature_scale", "veto"):
+            value = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                          else v for v in getattr(self, name))
+            object.__setattr__(self, name, value)
+            if len(value) != len(FEATURE_NAMES) or not all(
+                    isinstance(v, float) and math.isfinite(v) and v > 0 for v in value):
+                _fail(name, getattr(self, name),
+                      f"{len(FEATURE_NAMES)} positive numbers, one per feature")
+        _positive("identify_distance", self.identify_distance)
+        _positive("noise_dof", self.noise_dof)
+        _positive_int("min_common_features", self.min_common_features)
+        if self.min_common_features > len(FEATURE_NAMES):
+            _fail("min_common_features", self.min_common_features, f"<= {len(FEATURE_NAMES)}")
+        _unit("identify_share", self.identify_share)
+        _positive_int("refine_looks", self.refine_looks)
         _positive("learning_rate", self.learning_rate)
         _positive_int("batch_size", self.batch_size)
         _positive_int("train_steps", self.train_steps)
@@ -103,13 +144,15 @@ class MemoryConfig:
             _fail("max_train_steps", self.max_train_steps, f">= train_steps={self.train_steps}")
         _unit("recall_confidence", self.recall_confidence)
         _unit("new_fraction", self.new_fraction)
+        _unit("novel_fraction", self.novel_fraction)
+        if self.novel_fraction >= 1.0:
+            _fail("novel_fraction", self.novel_fraction, "< 1")
+        _positive("novel_near", self.novel_near)
+        _positive("novel_far", self.novel_far)
+        if self.novel_far < self.novel_near:
+            _fail("novel_far", self.novel_far, f">= novel_near={self.novel_near}")
+        _non_negative("prior_weight", self.prior_weight)
         _unit("unknown_feature_prob", self.unknown_feature_prob)
-        _non_negative("train_noise_std", self.train_noise_std)
-        _positive("acceptance_distance", self.acceptance_distance)
-        _positive("max_component_difference", self.max_component_difference)
-        _non_negative("ambiguity_margin", self.ambiguity_margin)
-        _unit("confidence_threshold", self.confidence_threshold)
-        _positive_int("max_exemplars_per_address", self.max_exemplars_per_address)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-friendly dict of every field (tuples become lists)."""

@@ -2,26 +2,30 @@
 
 A match has three outcomes (section 4.2, cases a-c): IDENTIFIED (address, confidence), NEW
 (only on the caller's final trial: all improvements used up and still nothing matches) and
-UNDETERMINED (not sure yet: improve the features). The BP network's winner-take-all output
-proposes an address; the proposal is checked against the stored exemplars on the features
-known both in the query and in the exemplar:
+UNDETERMINED (not sure yet: improve the features). The BP network decides
+(:mod:`roger_memory.network`): its winner-take-all over one output per address and one
+*novel* output gives the address, and the winner's softmax share gives the confidence.
 
-* distance to an exemplar: root-mean-square difference over the common known features, and
-  the exemplar *matches* when that RMS <= ``acceptance_distance`` and no single common
-  feature differs by more than ``max_component_difference``;
-* an address is a *candidate* when one of its exemplars matches; its distance is that of
-  its nearest matching exemplar.
+* Final match: the winning address is IDENTIFIED; the novel unit winning is NEW.
+* Non-final match: IDENTIFIED iff an address wins with a share >= ``identify_share`` and
+  the query knows every feature the address knows (vision alone cannot exclude a stored
+  object that differs in the weight, so a look without W is never identified as an
+  address that has W); otherwise UNDETERMINED, with the winning address as best guess.
+* A distance veto remains: the winner's nearest stored look must not differ from the query
+  in any feature by more than ``veto`` (a difference never seen between two looks of one
+  object); a veto turns IDENTIFIED into UNDETERMINED (non-final) or NEW (final), and is
+  counted in :attr:`AssociativeMemory.stats`.
 
-Non-final match: IDENTIFIED iff the network's winner is a candidate, its winner-take-all
-confidence is >= ``confidence_threshold``, and no other candidate is within
-``ambiguity_margin`` of its distance; otherwise UNDETERMINED (with the winner as best guess).
-Final match: IDENTIFIED if there is any candidate (the winner if it is one, else the
-nearest candidate), otherwise NEW. The memory is never changed by a match.
+Each address holds several looks: the looks of the focus that stored it (the requests
+carry the focus id) and, later, looks of foci identified as it, added only when one of
+the address's *stored* looks accepts them, so an address never grows by more than one
+acceptance radius from what was stored (no chaining, docs/memory.md).
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -40,13 +44,58 @@ from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optim
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
 
 
+@dataclass
+class MemoryStats:
+    """What the memory decided since it was built (not saved with it).
+
+    Attributes:
+        matches: Match requests answered (memory not empty).
+        identified: IDENTIFIED answers.
+        new: NEW answers.
+        undetermined: UNDETERMINED answers.
+        vetoes: Identifications by the network that the distance veto turned down.
+        coverage_holds: Non-final identifications held back because the address knows a
+            feature (the weight) that the query does not.
+        refinements: Looks added to an address after an identification.
+    """
+
+    matches: int = 0
+    identified: int = 0
+    new: int = 0
+    undetermined: int = 0
+    vetoes: int = 0
+    coverage_holds: int = 0
+    refinements: int = 0
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A match with everything the network said (for tests, notes and ablations).
+
+    Attributes:
+        result: The answer.
+        winner: The network's winning output: -1 for the novel unit, else an address.
+        share: The winner's softmax share.
+        distance: RMS z-distance of the query to the winner's nearest look (inf if none).
+        vetoed: The distance veto turned the network's identification down.
+        held: The non-final identification was held back (coverage or share).
+    """
+
+    result: MatchResult
+    winner: int
+    share: float
+    distance: float
+    vetoed: bool
+    held: bool
+
+
 class AssociativeMemory:
-    """BP network with winner-take-all over a growing long-term memory of exemplars.
+    """BP network with winner-take-all over a growing long-term memory of looks.
 
     Args:
-        config: Network sizes, training budget and match thresholds.
-        seed: Seed of every random draw (initial weights, replay batches); the same seed
-            and the same sequence of stores give the same memory.
+        config: Calibration, decision thresholds and training budget.
+        seed: Seed of every random draw (replay batches and noise); the same seed and the
+            same sequence of requests give the same memory.
     """
 
     def __init__(self, config: MemoryConfig = DEFAULT_CONFIG, seed: int = 0) -> None:
@@ -54,14 +103,23 @@ class AssociativeMemory:
             raise ConfigError(f"AssociativeMemory.seed={seed!r}: expected an int >= 0")
         self._config = config
         self._seed = int(seed)
-        self._exemplars = np.zeros((0, FEATURE_DIM), np.float32, order="F")
-        self._known = np.zeros((0, FEATURE_DIM), bool, order="F")
+        self._exemplars = np.zeros((0, FEATURE_DIM), np.float32)
+        self._known = np.zeros((0, FEATURE_DIM), bool)
         self._addresses = np.zeros(0, np.int64)
-        self._network = AssociativeNetwork(config.hidden_sizes, self._torch_generator(-1))
+        self._stored = np.zeros(0, bool)
+        self._network = AssociativeNetwork(config.feature_scale, config.identify_distance,
+                                           config.min_common_features)
         self._network.eval()
+        self._focus_id = 0
+        self._focus_looks: list[tuple[np.ndarray, np.ndarray]] = []
+        self._veto = np.asarray(config.veto, np.float32)
         warm_up_optimizer()
-        #: Replay steps the last store took (diagnostics and benchmarks).
+        #: Replay steps the last training took (diagnostics and benchmarks).
         self.last_train_steps = 0
+        #: Counts of the decisions since the memory was built.
+        self.stats = MemoryStats()
+        #: Grows with every change of the long-term memory (a store, a refinement).
+        self.revision = 0
 
     @property
     def config(self) -> MemoryConfig:
@@ -84,17 +142,17 @@ class AssociativeMemory:
         return self._network
 
     def exemplars(self, address: int) -> np.ndarray:
-        """Copy of the exemplars of ``address``, shape (n, FEATURE_DIM); unknown entries 0."""
+        """Copy of the looks of ``address``, shape (n, FEATURE_DIM); unknown entries 0."""
         self._check_address(address)
         return self._exemplars[self._addresses == address].copy()
 
     def exemplar_known(self, address: int) -> np.ndarray:
-        """Copy of the known masks of the exemplars of ``address``, shape (n, FEATURE_DIM)."""
+        """Copy of the known masks of the looks of ``address``, shape (n, FEATURE_DIM)."""
         self._check_address(address)
         return self._known[self._addresses == address].copy()
 
     def find_exact(self, features: np.ndarray, known: np.ndarray) -> int | None:
-        """Lowest address holding an exemplar equal to this pattern, or None.
+        """Lowest address holding a look equal to this pattern, or None.
 
         Equal means the same known mask and the same value of every known feature: a
         STORE sent again after its reply was lost (the requester re-sends what it sent)
@@ -107,20 +165,22 @@ class AssociativeMemory:
         return int(hits.min()) if hits.size else None
 
     def distances(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
-        """Distance of a pattern to every address (inf where no exemplar matches).
+        """RMS z-distance (calibrated scales) of a pattern to each address's nearest look.
 
-        The distance to an address is the smallest RMS difference, over the features known
-        in both, among its exemplars that match (see the module docstring).
+        inf where no look shares ``min_common_features`` known features with it.
 
         Returns:
             (size,) float64.
         """
         x, k = _validate(features, known)
-        return self._address_distances(x, k)
+        d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
+                   self._config.min_common_features)
+        out = np.full(self.size, np.inf)
+        np.minimum.at(out, self._addresses, d)
+        return out
 
-    def match(
-        self, features: np.ndarray, known: np.ndarray, final_trial: bool = False
-    ) -> MatchResult:
+    def match(self, features: np.ndarray, known: np.ndarray, final_trial: bool = False,
+              focus_id: int = 0) -> MatchResult:
         """Match a feature pattern against the long-term memory (section 4.2).
 
         Args:
@@ -128,44 +188,82 @@ class AssociativeMemory:
             known: FEATURE_DIM booleans; False where a feature is not measured yet.
             final_trial: All improvement trials are used up: answer IDENTIFIED or NEW,
                 never UNDETERMINED.
+            focus_id: The focus the look belongs to (0: none). The looks of one focus
+                are kept until the next focus: a STORE stores them all, an identification
+                may refine its address with them.
 
         Returns:
             IDENTIFIED (address, confidence), NEW (-1, 0.0; only when ``final_trial``) or
-            UNDETERMINED (the network's winner as a best guess, or -1, and its confidence).
+            UNDETERMINED (the network's winning address as a best guess, or -1, and its
+            share).
 
         Raises:
             MessageError: Wrong shape, or a known feature is not finite.
         """
-        x, k = _validate(features, known)
-        if self.size == 0:
-            if final_trial:
-                return MatchResult(MatchOutcome.NEW, -1, 0.0)
-            return MatchResult(MatchOutcome.UNDETERMINED, -1, 0.0)
-        winner, confidence, shares = self._network.recall(x, k)
-        rms = self._exemplar_distances(x, k)
-        mine = self._addresses == winner
-        d_winner = rms[mine].min()
-        d_other = rms[~mine].min(initial=np.inf)
-        if final_trial:
-            if np.isfinite(d_winner):
-                return MatchResult(MatchOutcome.IDENTIFIED, winner, confidence)
-            if not np.isfinite(d_other):
-                return MatchResult(MatchOutcome.NEW, -1, 0.0)
-            address = int(self._addresses[np.argmin(rms)])
-            return MatchResult(MatchOutcome.IDENTIFIED, address, float(shares[address]))
-        if (np.isfinite(d_winner) and confidence >= self._config.confidence_threshold
-                and d_other > d_winner + self._config.ambiguity_margin):
-            return MatchResult(MatchOutcome.IDENTIFIED, winner, confidence)
-        return MatchResult(MatchOutcome.UNDETERMINED, winner, confidence)
+        return self.decide(features, known, final_trial, focus_id).result
 
-    def store(self, features: np.ndarray, known: np.ndarray) -> int:
+    def decide(self, features: np.ndarray, known: np.ndarray, final_trial: bool = False,
+               focus_id: int = 0, network: AssociativeNetwork | None = None) -> Decision:
+        """:meth:`match` with the network's whole answer.
+
+        ``network`` replaces the memory's own network for this one decision (ablations);
+        nothing is then remembered of the look.
+        """
+        x, k = _validate(features, known)
+        if network is None:
+            self._keep_look(focus_id, x, k)
+        net = network or self._network
+        if self.size == 0:
+            outcome = MatchOutcome.NEW if final_trial else MatchOutcome.UNDETERMINED
+            self._count(outcome)
+            return Decision(MatchResult(outcome, -1, 0.0), -1, 0.0, np.inf, False, False)
+        self.stats.matches += 1
+        output, share, shares, d2 = net.recall(x, k)
+        winner = output - 1
+        if winner < 0:
+            guess = int(np.argmax(shares[1:]))
+            distance = float(np.sqrt(d2.min()))
+            result = (MatchResult(MatchOutcome.NEW, -1, 0.0) if final_trial else
+                      MatchResult(MatchOutcome.UNDETERMINED, guess, float(shares[1 + guess])))
+            self._count(result.outcome)
+            return Decision(result, -1, share, distance, False, False)
+        mine = np.flatnonzero(self._addresses == winner)
+        nearest = mine[np.argmin(d2[mine])]
+        distance = float(np.sqrt(d2[nearest]))
+        common = self._known[nearest] & k
+        vetoed = bool(np.any(np.abs(self._exemplars[nearest] - x)[common] >
+                             self._veto[common]))
+        if vetoed:
+            self.stats.vetoes += 1
+        held = False
+        if final_trial:
+            result = (MatchResult(MatchOutcome.NEW, -1, 0.0) if vetoed else
+                      MatchResult(MatchOutcome.IDENTIFIED, winner, share))
+        else:
+            covered = not np.any(self._known[mine].any(axis=0) & ~k)
+            if not covered and not vetoed and share >= self._config.identify_share:
+                self.stats.coverage_holds += 1
+            held = not covered or share < self._config.identify_share
+            if vetoed or held:
+                result = MatchResult(MatchOutcome.UNDETERMINED, winner, share)
+            else:
+                result = MatchResult(MatchOutcome.IDENTIFIED, winner, share)
+        self._count(result.outcome)
+        if result.outcome is MatchOutcome.IDENTIFIED and network is None:
+            self._refine(winner, x, k)
+        return Decision(result, winner, share, distance, vetoed, held)
+
+    def store(self, features: np.ndarray, known: np.ndarray, focus_id: int = 0) -> int:
         """Supervised learning (step 4 of section 4.1): store a new object and retrain.
 
-        Adds one exemplar and one network output unit, then retrains by replay of every
-        stored exemplar (see :func:`roger_memory.network.train_replay`).
+        The new address gets the looks of focus ``focus_id`` that show the same object as
+        ``features`` (those within the acceptance distance of it, their unknown features
+        completed from it, e.g. the weight measured at the end of the focus), plus
+        ``features`` itself; then the network is retrained by replay.
 
         Args:
             features: FEATURE_DIM floats in [0, 1]; known: which of them are measured.
+            focus_id: The focus whose looks to store with it (0: only ``features``).
 
         Returns:
             The new address: 0 for the first object, then 1, 2, ...
@@ -174,10 +272,15 @@ class AssociativeMemory:
             MessageError: Wrong shape, a known feature not finite, or nothing known.
         """
         x, k = _validate(features, known, need_known=True)
-        return self.store_many(x[None], k[None])[0]
+        looks = self._focus_looks if focus_id and focus_id == self._focus_id else []
+        xs, ks = self._same_object(looks, x, k)
+        address = self._network.add_address()
+        self._append(address, xs, ks, stored=True)
+        self._retrain(focus=address)
+        return address
 
     def store_many(self, features: np.ndarray, known: np.ndarray) -> list[int]:
-        """Store several new objects with one retraining (e.g. to preload a memory).
+        """Store several new objects, one look each, with one retraining (e.g. to preload).
 
         Args:
             features: (n, FEATURE_DIM) floats; known: (n, FEATURE_DIM) booleans.
@@ -186,39 +289,22 @@ class AssociativeMemory:
             The n new addresses, in order.
         """
         rows = [_validate(f, k, need_known=True) for f, k in zip(features, known, strict=True)]
-        if not rows:
-            return []
         new: list[int] = []
         for x, k in rows:
-            address = self._network.add_address(self._torch_generator(self.size))
-            self._append(address, x, k)
+            address = self._network.add_address()
+            self._append(address, x[None], k[None], stored=True)
             new.append(address)
-        self._retrain(focus=new[0] if len(new) == 1 else -1)
+        if new:
+            self._retrain(focus=new[0] if len(new) == 1 else -1)
         return new
-
-    def add_exemplar(self, address: int, features: np.ndarray, known: np.ndarray) -> bool:
-        """Refine an address with one more exemplar (e.g. its weight, measured later).
-
-        Never called by :meth:`match`: identifications do not change the memory.
-
-        Returns:
-            True if added (and the network retrained); False when the address already holds
-            ``max_exemplars_per_address`` exemplars.
-        """
-        self._check_address(address)
-        x, k = _validate(features, known, need_known=True)
-        if np.count_nonzero(self._addresses == address) >= self._config.max_exemplars_per_address:
-            return False
-        self._append(address, x, k)
-        self._retrain(focus=address)
-        return True
 
     def handle(self, req: MemoryRequest) -> MatchResult:
         """Answer a request: MATCH -> :meth:`match`; STORE -> MatchResult(NEW, address, 1.0)."""
         if req.op == MemoryOp.STORE:
-            return MatchResult(MatchOutcome.NEW, self.store(req.features, req.known), 1.0)
+            return MatchResult(MatchOutcome.NEW,
+                               self.store(req.features, req.known, req.focus_id), 1.0)
         if req.op == MemoryOp.MATCH:
-            return self.match(req.features, req.known, req.final_trial)
+            return self.match(req.features, req.known, req.final_trial, req.focus_id)
         raise MessageError(f"MemoryRequest {req.request_id}: unknown op {req.op!r}")
 
     def snapshot(self) -> MemorySnapshot:
@@ -226,7 +312,7 @@ class AssociativeMemory:
         weights = {k: v.detach().numpy().copy() for k, v in self._network.state_dict().items()}
         return MemorySnapshot(self._config.to_dict(), self._seed, self.size,
                               self._exemplars.copy(), self._known.copy(),
-                              self._addresses.copy(), weights)
+                              self._addresses.copy(), weights, self._stored.copy())
 
     @classmethod
     def from_snapshot(
@@ -249,17 +335,17 @@ class AssociativeMemory:
                     f"{getattr(config, name)} in the configuration; use the file's value "
                     "or start a new memory file")
         memory = cls(config, snap.seed)
-        for address in range(snap.n_addresses):
-            memory._network.add_address(memory._torch_generator(address))
+        memory._network.resize(len(snap.addresses), snap.n_addresses)
         try:
             state = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in snap.weights.items()}
             memory._network.load_state_dict(state, strict=True)
         except (RuntimeError, TypeError) as exc:
             raise MemoryFileError(f"{source}: network weights do not fit ({exc})") from exc
         memory._network.eval()
-        memory._exemplars = np.asfortranarray(snap.exemplars, np.float32).copy(order="F")
-        memory._known = np.asfortranarray(snap.known, bool).copy(order="F")
+        memory._exemplars = np.asarray(snap.exemplars, np.float32).copy()
+        memory._known = np.asarray(snap.known, bool).copy()
         memory._addresses = np.asarray(snap.addresses, np.int64).copy()
+        memory._stored = np.asarray(snap.stored, bool).copy()
         return memory
 
     def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
@@ -277,8 +363,8 @@ class AssociativeMemory:
 
         Args:
             path: The memory file.
-            config: Configuration to use (thresholds may differ from the file's, the network
-                sizes may not); None uses the one stored in the file.
+            config: Configuration to use (thresholds may differ from the file's); None
+                uses the one stored in the file.
 
         Raises:
             MemoryFileError: Missing, cut off, corrupt or incompatible file (names it).
@@ -300,30 +386,81 @@ class AssociativeMemory:
 
     # -- internals -------------------------------------------------------------------
 
-    def _exemplar_distances(self, x: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """RMS difference to every exemplar over the common known features; inf if no match."""
-        # The exemplar arrays are Fortran-ordered: these row reductions then run down
-        # contiguous columns, several times faster at 1,000 exemplars.
-        common = self._known & k
-        n_common = common.sum(axis=1)
-        diff = (self._exemplars - x) * common
-        sq = (diff * diff).sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rms = np.sqrt(sq / n_common)
-        ok = ((n_common > 0) & (rms <= self._config.acceptance_distance)
-              & (np.abs(diff).max(axis=1) <= self._config.max_component_difference))
-        return np.where(ok, rms, np.inf)
+    def _keep_look(self, focus_id: int, x: np.ndarray, k: np.ndarray) -> None:
+        if focus_id != self._focus_id:
+            self._focus_id = int(focus_id)
+            self._focus_looks = []
+        if focus_id and not any(np.array_equal(x, fx) and np.array_equal(k, fk)
+                                for fx, fk in self._focus_looks):
+            self._focus_looks.append((x, k))
 
-    def _address_distances(self, x: np.ndarray, k: np.ndarray) -> np.ndarray:
-        dist = np.full(self.size, np.inf)
-        np.minimum.at(dist, self._addresses, self._exemplar_distances(x, k))
-        return dist
+    def _same_object(self, looks: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray,
+                     k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The looks of a focus that show the object of (x, k), completed with what (x, k)
+        knows, without duplicates, (x, k) last."""
+        scale = np.asarray(self._config.feature_scale)
+        out_x, out_k = [], []
+        for fx, fk in looks:
+            cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
+            d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features)[0]
+            if d <= self._config.identify_distance and not (
+                    np.array_equal(ck, k) and np.array_equal(np.where(ck, cx, 0), x)):
+                out_x.append(cx)
+                out_k.append(ck)
+        out_x.append(x)
+        out_k.append(k)
+        return np.stack(out_x), np.stack(out_k)
 
-    def _append(self, address: int, x: np.ndarray, k: np.ndarray) -> None:
-        self._exemplars = np.asfortranarray(
-            np.vstack([self._exemplars, np.where(k, x, 0.0)[None]]), np.float32)
-        self._known = np.asfortranarray(np.vstack([self._known, k[None]]))
-        self._addresses = np.append(self._addresses, np.int64(address))
+    def _refine(self, address: int, x: np.ndarray, k: np.ndarray) -> None:
+        """Add the current focus's looks of an identified object to its address.
+
+        Each is written into a new hidden unit of the address (no retraining on the
+        match's path; the next store's retraining includes the unit). Only a look that
+        knows every feature the address knows, and that one of the address's *stored*
+        looks (not an earlier refinement) accepts, is added: an address then never reaches
+        further than one acceptance radius beyond what was stored, so identifications
+        cannot chain it into another object.
+        """
+        mine = self._addresses == address
+        if np.any(self._known[mine].any(axis=0) & ~k):
+            return
+        cfg = self._config
+        looks = self._focus_looks if self._focus_looks else [(x, k)]
+        origin = mine & self._stored
+        ox, ok = self._exemplars[origin], self._known[origin]
+        held = int(np.count_nonzero(mine))
+        scale = np.asarray(cfg.feature_scale)
+        added = 0
+        xs, ks = self._same_object(looks, x, k)
+        for fx, fk in zip(xs, ks, strict=True):
+            if held + added >= cfg.refine_looks:
+                break
+            if self.find_exact(fx, fk) is not None:
+                continue
+            d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features)
+            if d.size and d.min() <= cfg.identify_distance:
+                self._append(address, fx[None], fk[None], stored=False)
+                added += 1
+        # No retraining here: a unit answers as soon as its look is written in (the match
+        # stays one forward pass), and the retraining after the next store includes it.
+        self.stats.refinements += added
+
+    def _count(self, outcome: MatchOutcome) -> None:
+        if outcome is MatchOutcome.IDENTIFIED:
+            self.stats.identified += 1
+        elif outcome is MatchOutcome.NEW:
+            self.stats.new += 1
+        else:
+            self.stats.undetermined += 1
+
+    def _append(self, address: int, xs: np.ndarray, ks: np.ndarray, stored: bool) -> None:
+        xs = np.where(ks, xs, 0.0).astype(np.float32)
+        self._exemplars = np.vstack([self._exemplars, xs])
+        self._known = np.vstack([self._known, ks])
+        self._addresses = np.append(self._addresses, np.full(len(xs), address, np.int64))
+        self._stored = np.append(self._stored, np.full(len(xs), stored))
+        self._network.add_units(xs, ks, address)
+        self.revision += 1
 
     def _retrain(self, focus: int) -> None:
         rng = np.random.default_rng([self._seed, len(self._addresses), self.size])
@@ -331,15 +468,20 @@ class AssociativeMemory:
             self._network, self._exemplars, self._known, self._addresses, focus,
             self._config, rng)
 
-    def _torch_generator(self, address: int) -> torch.Generator:
-        # One generator per output unit, derived from (seed, address): no RNG state needs
-        # saving, and a loaded memory rebuilds exactly the same layers.
-        state = np.random.SeedSequence([self._seed, address + 1]).generate_state(1, np.uint64)
-        return torch.Generator().manual_seed(int(state[0]))
-
     def _check_address(self, address: int) -> None:
         if not 0 <= address < self.size:
             raise IndexError(f"address {address} outside [0, {self.size})")
+
+
+def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: np.ndarray,
+           min_common: int) -> np.ndarray:
+    """RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2) scale_f)."""
+    common = ks & k
+    n = common.sum(axis=1)
+    z2 = ((xs - x) / (np.sqrt(2.0) * scale)) ** 2 * common
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(z2.sum(axis=1) / np.maximum(n, 1))
+    return np.where(n >= min_common, d, np.inf)
 
 
 def _validate(

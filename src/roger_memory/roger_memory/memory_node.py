@@ -2,7 +2,8 @@
 
 Run alone: ``roger-memory --ros-args -p memory_file:=runs/ltm.pt`` (or ``python -m
 roger_memory.memory_node``). With ``memory_file`` set, the long-term memory is loaded at
-start and written atomically after every store, before the reply goes out.
+start and written atomically after every change (a store, or an identification that added
+looks to its address), before the reply goes out.
 
 Re-sent requests (the attention node re-sends one left unanswered, e.g. while this node was
 restarting) are answered once: the last replies are kept by request id, and a STORE whose
@@ -73,6 +74,7 @@ class MemoryNode(Node):
         if stored is not None:
             self.get_logger().warn(f"store {req.request_id}: already stored at address "
                                    f"{stored} (a re-sent request)")
+        revision = self.memory.revision
         try:
             result = (self.memory.handle(req) if stored is None
                       else MatchResult(MatchOutcome.NEW, stored, 1.0))
@@ -80,14 +82,15 @@ class MemoryNode(Node):
             self.get_logger().error(f"memory request {req.request_id} refused: {exc}")
             return
         reply = conv.result_to_msg(req.request_id, req.op, result, self.memory.size, stamp)
+        if self.memory.revision != revision and self.path is not None:
+            # A store, or an identification that refined its address.
+            try:
+                # Not fsynced: it delays the reply (sync_file at exit).
+                self.memory.save(self.path, durable=False)
+            except OSError as exc:
+                self.get_logger().error(f"could not write {self.path}: {exc}; the memory "
+                                        "is kept in RAM only")
         if req.op == MemoryOp.STORE and stored is None:
-            if self.path is not None:
-                try:
-                    # Not fsynced: it delays the reply (sync_file at exit).
-                    self.memory.save(self.path, durable=False)
-                except OSError as exc:
-                    self.get_logger().error(f"could not write {self.path}: {exc}; the object "
-                                            "is kept in RAM only")
             self.pub_learned.publish(reply)
             self.get_logger().info(f"stored object at address {result.address} "
                                    f"({self.memory.size} in memory)")

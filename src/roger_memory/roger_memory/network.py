@@ -6,21 +6,30 @@ the pattern to an address in the long term memory". Step 4 of section 4.1: a sup
 learning module "stores a new set of features in the long-term memory and re-trains the BP
 network".
 
-Input coding: a feature that is not measured yet (the weight W before a haptic
-improvement) must count as unknown, not as zero. The input is therefore the feature vector
-with unknown entries zeroed, followed by the ``known`` mask itself (2 * FEATURE_DIM inputs):
-the network can tell "W = 0" from "W not measured".
+The network must also say "none of them": after all trials an object that matches no
+address is new. A tanh network's winner is as confident far from every stored pattern as
+near one (nothing in it measures "near"), so this one has a radial hidden layer:
 
-Output: one unit per long-term-memory address. The memory starts empty; each store adds an
-output unit (the old units keep their weights) and retrains with replay of every stored
-exemplar, so old recalls stay intact (see docs/memory.md).
+* hidden layer: one unit per stored look (its centre: the look's features, written in by
+  the store, then trained). Its activation is the mean squared z over the features known
+  both in the input and in the look, z_f = (x_f - c_f) / (sqrt(2) sigma_f), with one
+  trained scale sigma_f per feature (shared by all units). A unit that shares fewer than
+  ``min_common_features`` known features with the input is silent. Unknown features (W
+  before a haptic improvement) are left out, never taken as zero;
+* output layer: one unit per long-term-memory address, -gain / 2 * (its nearest look's
+  activation) + bias, and one *novel* unit, -gain / 2 * tau^2 (tau: the acceptance
+  distance, trained);
+* winner-take-all over the 1 + n_addresses outputs; the winner's softmax share is the
+  network's confidence. The novel unit wins when no stored look is within about tau.
+
+All parameters (centres, scales, tau, gain, biases) are trained by back-propagation of the
+cross-entropy of the winner-take-all output (see :func:`train_replay`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import warnings
 from collections.abc import Iterator
 
 import numpy as np
@@ -30,24 +39,8 @@ from torch import nn
 from roger_common.types import FEATURE_DIM, FEATURE_NAMES
 from roger_memory.config import MemoryConfig
 
-#: Inputs of the network: masked features then the known mask.
-INPUT_DIM: int = 2 * FEATURE_DIM
-
-
-def encode(features: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Network input for one or many feature vectors.
-
-    Args:
-        features: (FEATURE_DIM,) or (n, FEATURE_DIM) floats in [0, 1].
-        known: Same shape, booleans; False where a feature is not measured.
-
-    Returns:
-        (n, INPUT_DIM) float32: features with unknown entries zeroed, then the mask.
-    """
-    x = np.atleast_2d(np.asarray(features, np.float32))
-    k = np.atleast_2d(np.asarray(known, bool))
-    return np.concatenate([np.where(k, x, 0.0), k], axis=1).astype(np.float32)
-
+#: Activation standing in for "no unit can answer" (finite, so that gradients stay finite).
+SILENT: float = 1.0e4
 
 _warmed_up = False
 
@@ -73,11 +66,10 @@ def warm_up_optimizer() -> None:
 def one_thread() -> Iterator[None]:
     """Run torch on one intra-op thread inside the block, then restore the thread count.
 
-    The network is tiny (a 128 x 16 batch, 64 hidden units): with two or more threads every
-    operation pays for waking and joining the pool, which made a replay step about ten
-    times slower (6.6 ms instead of 0.6 ms on a 2-core machine, docs/performance.md). One
-    thread is also what the memory node uses, so the graph and the in-process core loop
-    compute the same floats.
+    The network is tiny: with two or more threads every operation pays for waking and
+    joining the pool, which made a replay step about ten times slower on a 2-core machine
+    (docs/performance.md). One thread is also what the memory node uses, so the graph and
+    the in-process core loop compute the same floats.
     """
     threads = torch.get_num_threads()
     if threads == 1:
@@ -94,7 +86,7 @@ def winner_take_all(logits: torch.Tensor) -> tuple[int, float, torch.Tensor]:
     """Winner-take-all over the output units.
 
     Args:
-        logits: (n_addresses,) output activations for one pattern.
+        logits: (n_outputs,) output activations for one pattern.
 
     Returns:
         (winner, confidence, shares): the index of the largest output, its softmax share
@@ -105,86 +97,192 @@ def winner_take_all(logits: torch.Tensor) -> tuple[int, float, torch.Tensor]:
     return winner, float(shares[winner]), shares
 
 
+@torch.no_grad()
+def _fill(t: torch.Tensor, generator: torch.Generator, low: float, high: float) -> None:
+    t.uniform_(low, high, generator=generator)
+
+
 class AssociativeNetwork(nn.Module):
-    """Feed-forward BP network: INPUT_DIM -> tanh hidden layers -> one unit per address.
+    """Radial BP network: stored looks -> one output per address plus a novel output.
+
+    Output 0 is the novel unit; output ``1 + a`` is address ``a``.
 
     Args:
-        hidden_sizes: Units of each hidden layer.
-        generator: Seeded torch generator for the initial weights (no global RNG).
+        feature_scale: Initial sigma_f per feature (MemoryConfig.feature_scale).
+        identify_distance: Initial tau (MemoryConfig.identify_distance).
+        min_common_features: Fewest common known features for a unit to answer.
     """
 
-    def __init__(self, hidden_sizes: tuple[int, ...], generator: torch.Generator) -> None:
+    def __init__(self, feature_scale: tuple[float, ...], identify_distance: float,
+                 min_common_features: int) -> None:
         super().__init__()
-        layers: list[nn.Module] = []
-        width = INPUT_DIM
-        for h in hidden_sizes:
-            linear = _new_linear(width, h, generator)
-            layers += [linear, nn.Tanh()]
-            width = h
-        self.hidden = nn.Sequential(*layers)
-        self.output = _new_linear(width, 0, generator)
+        self.min_common_features = int(min_common_features)
+        self.log_scale = nn.Parameter(torch.log(torch.tensor(feature_scale, dtype=torch.float32)))
+        self.log_tau = nn.Parameter(torch.tensor(math.log(identify_distance), dtype=torch.float32))
+        self.log_gain = nn.Parameter(torch.zeros(()))
+        # A centre is its stored look plus a trained shift in units of the calibrated
+        # repeat noise (sqrt(2) sigma_f): Adam's steps are then alike in every feature,
+        # where in feature units they would move a precise feature (T, D: sigma ~ 0.005)
+        # by several sigma per step.
+        self.register_buffer("step", np.sqrt(2.0) * torch.tensor(feature_scale,
+                                                                   dtype=torch.float32))
+        self.register_buffer("stored", torch.zeros(0, FEATURE_DIM))
+        self.shift = nn.Parameter(torch.zeros(0, FEATURE_DIM))
+        self.bias = nn.Parameter(torch.zeros(0))
+        self.register_buffer("unit_known", torch.zeros(0, FEATURE_DIM, dtype=torch.bool))
+        self.register_buffer("unit_address", torch.zeros(0, dtype=torch.long))
+        self.step: torch.Tensor
+        self.stored: torch.Tensor
+        self.unit_known: torch.Tensor
+        self.unit_address: torch.Tensor
 
     @property
     def n_addresses(self) -> int:
-        """Number of output units, one per long-term-memory address."""
-        return self.output.out_features
+        """Number of address outputs (the novel unit not counted)."""
+        return int(self.bias.shape[0])
 
-    def add_address(self, generator: torch.Generator) -> int:
-        """Append one output unit; the existing units keep their weights.
+    @property
+    def n_units(self) -> int:
+        """Number of hidden units (stored looks)."""
+        return int(self.stored.shape[0])
+
+    @property
+    def centres(self) -> torch.Tensor:
+        """The units' centres, (n_units, FEATURE_DIM): stored look + trained shift."""
+        return self.stored + self.shift * self.step
+
+    @property
+    def scale(self) -> np.ndarray:
+        """The trained sigma_f, per feature."""
+        return torch.exp(self.log_scale).detach().numpy().copy()
+
+    @property
+    def tau(self) -> float:
+        """The trained acceptance distance."""
+        return float(torch.exp(self.log_tau.detach()))
+
+    @property
+    def gain(self) -> float:
+        """The trained gain of the output units."""
+        return float(torch.exp(self.log_gain.detach()))
+
+    def add_address(self) -> int:
+        """Append one address output (bias 0); the existing outputs keep their weights.
 
         Returns:
-            The new address (index of the new unit).
+            The new address.
         """
-        old = self.output
-        new = _new_linear(old.in_features, old.out_features + 1, generator)
         with torch.no_grad():
-            new.weight[: old.out_features] = old.weight
-            new.bias[: old.out_features] = old.bias
-            # Start the new unit below the others so it does not steal their patterns
-            # before replay has shaped it.
-            new.bias[old.out_features] = old.bias.min() if old.out_features else 0.0
-        self.output = new
-        return old.out_features
+            self.bias = nn.Parameter(torch.cat([self.bias.detach(), torch.zeros(1)]))
+        return self.n_addresses - 1
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Output activations (logits), shape (n, n_addresses), for encoded inputs x."""
-        return self.output(self.hidden(x))
+    def add_units(self, features: np.ndarray, known: np.ndarray, address: int) -> None:
+        """Append hidden units centred on looks of ``address`` (the store writes them in)."""
+        x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, FEATURE_DIM))
+        k = torch.from_numpy(np.asarray(known, bool).reshape(-1, FEATURE_DIM))
+        with torch.no_grad():
+            self.shift = nn.Parameter(torch.cat([self.shift.detach(), torch.zeros_like(x)]))
+        self.stored = torch.cat([self.stored, x])
+        self.unit_known = torch.cat([self.unit_known, k])
+        self.unit_address = torch.cat([self.unit_address,
+                                       torch.full((len(x),), int(address), dtype=torch.long)])
+
+    def resize(self, n_units: int, n_addresses: int) -> None:
+        """Empty parameters of the given shape (to load a saved state_dict into)."""
+        with torch.no_grad():
+            self.shift = nn.Parameter(torch.zeros(n_units, FEATURE_DIM))
+            self.bias = nn.Parameter(torch.zeros(n_addresses))
+        self.stored = torch.zeros(n_units, FEATURE_DIM)
+        self.unit_known = torch.zeros(n_units, FEATURE_DIM, dtype=torch.bool)
+        self.unit_address = torch.zeros(n_units, dtype=torch.long)
+
+    def untrained_copy(self, generator: torch.Generator) -> AssociativeNetwork:
+        """A network of the same shape whose parameters were never trained (for ablations):
+        centres drawn uniformly in the feature range, scales, tau and gain drawn around 1,
+        biases around 0. The units keep their known masks and addresses (the shape)."""
+        net = AssociativeNetwork(tuple([1.0] * FEATURE_DIM), 1.0, self.min_common_features)
+        net.resize(self.n_units, self.n_addresses)
+        net.unit_known = self.unit_known.clone()
+        net.unit_address = self.unit_address.clone()
+        _fill(net.stored, generator, 0.0, 1.0)
+        _fill(net.log_scale.data, generator, -0.1, 0.1)
+        _fill(net.log_tau.data, generator, -0.1, 0.1)
+        _fill(net.log_gain.data, generator, -0.1, 0.1)
+        _fill(net.bias.data, generator, -0.1, 0.1)
+        net.eval()
+        return net
+
+    def unit_distances(self, x: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+        """Mean squared z of inputs to every unit, (n, n_units); SILENT where too few
+        features are common.
+
+        Computed as three matrix products, so a match costs one small product per feature
+        set whatever the number of units.
+        """
+        inv = 0.5 * torch.exp(-2.0 * self.log_scale)          # 1 / (2 sigma^2)
+        kf = k.to(x.dtype)
+        m = self.unit_known.to(x.dtype)
+        c = self.centres * m
+        kx = kf * x
+        sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
+        n = kf @ m.T
+        d2 = sq.clamp_min(0.0) / n.clamp_min(1.0)
+        return torch.where(n >= self.min_common_features, d2.clamp_max(SILENT),
+                           torch.full_like(d2, SILENT))
+
+    def address_distances(self, d2: torch.Tensor) -> torch.Tensor:
+        """Per address, the activation of its nearest unit: (n, n_addresses)."""
+        out = torch.full((d2.shape[0], self.n_addresses), SILENT, dtype=d2.dtype)
+        index = self.unit_address.unsqueeze(0).expand_as(d2)
+        return out.scatter_reduce(1, index, d2, reduce="amin", include_self=True)
+
+    def forward(self, x: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+        """Output activations (logits), (n, 1 + n_addresses): novel unit first."""
+        gain = torch.exp(self.log_gain)
+        per_address = self.address_distances(self.unit_distances(x, k))
+        addresses = -0.5 * gain * per_address + self.bias
+        novel = (-0.5 * gain * torch.exp(2.0 * self.log_tau)).expand(x.shape[0], 1)
+        return torch.cat([novel, addresses], dim=1)
 
     @torch.no_grad()
-    def recall(self, features: np.ndarray, known: np.ndarray) -> tuple[int, float, np.ndarray]:
+    def recall(self, features: np.ndarray, known: np.ndarray
+               ) -> tuple[int, float, np.ndarray, np.ndarray]:
         """Winner-take-all answer for one pattern.
 
         Returns:
-            (winner, confidence, shares) as in :func:`winner_take_all`; shares is numpy.
+            (winner, confidence, shares, unit_d2): the winning output (0: novel, 1 + a:
+            address a), its share, every output's share, and every unit's activation.
         """
-        if self.n_addresses == 0:
-            return -1, 0.0, np.zeros(0, np.float32)
         with one_thread():
-            logits = self(torch.from_numpy(encode(features, known)))[0]
+            x = torch.from_numpy(np.asarray(features, np.float32).reshape(1, FEATURE_DIM))
+            k = torch.from_numpy(np.asarray(known, bool).reshape(1, FEATURE_DIM))
+            d2 = self.unit_distances(x, k)
+            gain = torch.exp(self.log_gain)
+            addresses = -0.5 * gain * self.address_distances(d2) + self.bias
+            novel = (-0.5 * gain * torch.exp(2.0 * self.log_tau)).reshape(1, 1)
+            logits = torch.cat([novel, addresses], dim=1)[0]
             winner, confidence, shares = winner_take_all(logits)
-        return winner, confidence, shares.numpy()
+        return winner, confidence, shares.numpy(), d2[0].numpy()
 
     @torch.no_grad()
     def shares(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
-        """Softmax shares of every unit for many patterns at once, shape (n, n_addresses)."""
+        """Softmax shares of every output for many patterns, (n, 1 + n_addresses)."""
         with one_thread():
-            return torch.softmax(self(torch.from_numpy(encode(features, known))),
-                                 dim=1).numpy()
+            x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, FEATURE_DIM))
+            k = torch.from_numpy(np.asarray(known, bool).reshape(-1, FEATURE_DIM))
+            return torch.softmax(self(x, k), dim=1).numpy()
 
 
-def _new_linear(n_in: int, n_out: int, generator: torch.Generator) -> nn.Linear:
-    """A linear layer initialised from ``generator`` only (torch's global RNG is untouched).
+def student_t_noise(rng: np.random.Generator, shape: tuple[int, ...], dof: float
+                    ) -> np.ndarray:
+    """Multivariate Student-t draws (one scale per row): Gaussian / sqrt(chi2_dof / dof).
 
-    Built on the meta device first, because nn.Linear's own init draws from the global RNG.
+    The robot's repeat looks have heavy tails (a look now and then is far off in every
+    feature at once); one common scale per row reproduces that.
     """
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", "Initializing zero-element", UserWarning)
-        linear = nn.Linear(n_in, n_out, device="meta").to_empty(device="cpu")
-    bound = 1.0 / math.sqrt(max(linear.in_features, 1))
-    with torch.no_grad():
-        linear.weight.uniform_(-bound, bound, generator=generator)
-        linear.bias.uniform_(-bound, bound, generator=generator)
-    return linear
+    g = rng.standard_normal(shape)
+    w = rng.chisquare(dof, (shape[0],) + (1,) * (len(shape) - 1)) / dof
+    return g / np.sqrt(w)
 
 
 def train_replay(
@@ -196,22 +294,31 @@ def train_replay(
     config: MemoryConfig,
     rng: np.random.Generator,
 ) -> int:
-    """Supervised learning module: retrain the network by replaying the stored exemplars.
+    """Supervised learning module: retrain the network by replaying the stored looks.
 
-    Each step draws ``batch_size`` exemplars, ``new_fraction`` of them from the address
-    ``focus`` (the one just stored) and the rest uniformly from all, adds Gaussian noise and
-    turns the maskable features unknown at random, then takes one Adam step on the
-    cross-entropy of the winner-take-all output. After ``train_steps`` steps, training goes
-    on in blocks of ``check_every`` steps until every exemplar, with its own mask, wins with
-    a share >= ``recall_confidence``, or ``max_train_steps`` is reached.
+    Each step draws ``batch_size`` samples. Repeats: stored looks (``new_fraction`` of
+    them from the address ``focus``, the rest uniformly from all), moved by the robot's
+    calibrated repeat noise (per feature sqrt(2) sigma_f times a Student-t of
+    ``noise_dof`` degrees of freedom) with the maskable features (W) turned unknown at
+    random; their target is their address. Novel samples (``novel_fraction`` of the
+    batch): stored looks moved by a random offset whose RMS z-distance lies between
+    ``novel_near`` and ``novel_far`` times the calibrated tau; their target is the novel
+    unit. One Adam step on the cross-entropy of the winner-take-all output, plus a pull of
+    every centre towards its stored look, of the scales and tau towards the calibration
+    and of the gain and biases towards 1 and 0 (``prior_weight``). Looks with fewer than
+    ``min_common_features`` known features are left out (their unit never answers).
+    After ``train_steps`` steps, training goes on in blocks of ``check_every`` until every
+    stored look, with its own mask, wins for its address with a share >=
+    ``recall_confidence`` (addresses that answer it as well as its own count with it), or
+    ``max_train_steps`` is reached.
 
     Args:
         network: The network to train in place.
-        exemplars: (n, FEATURE_DIM) stored feature vectors.
+        exemplars: (n, FEATURE_DIM) stored looks (the units' stored values).
         known: (n, FEATURE_DIM) their known masks.
-        addresses: (n,) address of each exemplar.
+        addresses: (n,) address of each look.
         focus: Address to oversample (the newest); -1 for none.
-        config: Training parameters.
+        config: Training parameters and the calibration.
         rng: Seeded generator for batches, noise and masks.
 
     Returns:
@@ -224,14 +331,23 @@ def train_replay(
 def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.ndarray,
                   addresses: np.ndarray, focus: int, config: MemoryConfig,
                   rng: np.random.Generator) -> int:
-    n = len(exemplars)
-    focus_idx = np.flatnonzero(addresses == focus)
-    maskable = np.array([name in config.maskable_features for name in FEATURE_NAMES])
     x_all = np.asarray(exemplars, np.float32)
     k_all = np.asarray(known, bool)
-    y_all = torch.from_numpy(np.asarray(addresses, np.int64))
+    # A look with too few known features can never answer (its unit is silent): it is
+    # neither replayed nor checked, else training would bend every weight to recall it.
+    usable = np.flatnonzero(k_all.sum(axis=1) >= config.min_common_features)
+    if usable.size == 0:
+        return 0
+    focus_idx = usable[addresses[usable] == focus]
+    maskable = np.array([name in config.maskable_features for name in FEATURE_NAMES])
+    y_all = np.asarray(addresses, np.int64) + 1
+    prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
+    prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
+    sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.learning_rate)
-    n_focus = round(config.batch_size * config.new_fraction) if len(focus_idx) else 0
+    n_novel = round(config.batch_size * config.novel_fraction)
+    n_repeat = config.batch_size - n_novel
+    n_focus = round(n_repeat * config.new_fraction) if len(focus_idx) else 0
     steps = 0
     network.train()
     block = config.train_steps
@@ -239,20 +355,50 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
         for _ in range(min(block, config.max_train_steps - steps)):
             idx = np.concatenate([
                 rng.choice(focus_idx, n_focus) if n_focus else np.zeros(0, np.int64),
-                rng.integers(0, n, config.batch_size - n_focus),
-            ])
-            x = x_all[idx] + rng.normal(0.0, config.train_noise_std, (len(idx), FEATURE_DIM))
+                rng.choice(usable, n_repeat - n_focus)])
+            noise = student_t_noise(rng, (len(idx), FEATURE_DIM), config.noise_dof) * sigma
+            x = x_all[idx] + noise
             drop = maskable & (rng.random((len(idx), FEATURE_DIM)) < config.unknown_feature_prob)
             k = k_all[idx] & ~drop
-            inputs = torch.from_numpy(encode(np.clip(x, 0.0, 1.0), k))
-            loss = nn.functional.cross_entropy(network(inputs), y_all[idx])
+            k = np.where((k.sum(axis=1) >= config.min_common_features)[:, None], k, k_all[idx])
+            y = y_all[idx]
+            if n_novel:
+                nov = rng.choice(usable, n_novel)
+                kn = k_all[nov]
+                direction = rng.standard_normal((n_novel, FEATURE_DIM)) * kn
+                norm = np.sqrt((direction ** 2).sum(axis=1) / np.maximum(kn.sum(axis=1), 1))
+                radius = config.identify_distance * rng.uniform(
+                    config.novel_near, config.novel_far, n_novel)
+                offset = direction / np.maximum(norm, 1e-9)[:, None] * radius[:, None] * sigma
+                x = np.concatenate([x, x_all[nov] + offset])
+                k = np.concatenate([k, kn])
+                y = np.concatenate([y, np.zeros(n_novel, np.int64)])
+            inputs = torch.from_numpy(np.clip(x, 0.0, 1.0).astype(np.float32))
+            logits = network(inputs, torch.from_numpy(k))
+            loss = nn.functional.cross_entropy(logits, torch.from_numpy(y))
+            pull = (network.shift ** 2).sum(dim=1).mean()
+            prior = ((network.log_scale - prior_scale) ** 2).mean() \
+                + (network.log_tau - prior_tau) ** 2 + network.log_gain ** 2 \
+                + (network.bias ** 2).mean()
+            loss = loss + config.prior_weight * (pull + prior)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
             steps += 1
-        own = network.shares(x_all, k_all)[np.arange(n), addresses]
-        if own.min() >= config.recall_confidence:
+        if _recalled(network, x_all[usable], k_all[usable], y_all[usable],
+                     config.recall_confidence):
             break
         block = config.check_every
     network.eval()
     return steps
+
+
+def _recalled(network: AssociativeNetwork, x: np.ndarray, k: np.ndarray, y: np.ndarray,
+              confidence: float) -> bool:
+    """Every look, with its own mask, wins for its address with ``confidence`` of the
+    share, counting as one the addresses that answer it as well as its own (a look stored
+    under two addresses cannot be told apart, and training must not try)."""
+    shares = network.shares(x, k)
+    own = shares[np.arange(len(y)), y]
+    tied = shares[:, 1:] >= own[:, None] * (1.0 - 1e-3)
+    return bool(np.all((shares[:, 1:] * tied).sum(axis=1) >= confidence))

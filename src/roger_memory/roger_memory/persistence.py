@@ -34,7 +34,7 @@ from roger_common.types import FEATURE_DIM, FEATURE_NAMES
 #: First bytes of every long-term-memory file.
 MAGIC: bytes = b"ROGERMEM"
 #: Bumped whenever the layout changes; older or newer files are refused.
-FORMAT_VERSION: int = 1
+FORMAT_VERSION: int = 2
 _PREFIX = struct.Struct("<8sIQ")
 _MAX_HEADER_BYTES = 1 << 20
 _WEIGHT_PREFIX = "net."
@@ -52,6 +52,8 @@ class MemorySnapshot:
         known: (n, FEATURE_DIM) bool known masks of the exemplars.
         addresses: (n,) int64 address of each exemplar.
         weights: Network state_dict as numpy arrays, by parameter name.
+        stored: (n,) bool: the look came with the store of its address (False: added by
+            a later identification). None: all stored.
     """
 
     config: dict[str, Any]
@@ -61,6 +63,11 @@ class MemorySnapshot:
     known: np.ndarray
     addresses: np.ndarray
     weights: dict[str, np.ndarray] = field(default_factory=dict)
+    stored: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.stored is None:
+            self.stored = np.ones(len(self.addresses), bool)
 
 
 def encode_snapshot(snapshot: MemorySnapshot) -> bytes:
@@ -70,6 +77,7 @@ def encode_snapshot(snapshot: MemorySnapshot) -> bytes:
         "exemplars": np.asarray(snapshot.exemplars, np.float32),
         "known": np.asarray(snapshot.known, bool),
         "addresses": np.asarray(snapshot.addresses, np.int64),
+        "stored": np.asarray(snapshot.stored, bool),
     }
     arrays.update({_WEIGHT_PREFIX + k: np.asarray(v) for k, v in snapshot.weights.items()})
     np.savez(buf, **arrays)  # type: ignore[arg-type]
@@ -133,10 +141,12 @@ def decode_snapshot(data: bytes, source: str = "<bytes>") -> MemorySnapshot:
         exemplars = arrays.pop("exemplars").astype(np.float32)
         known = arrays.pop("known").astype(bool)
         addresses = arrays.pop("addresses").astype(np.int64)
+        stored = arrays.pop("stored").astype(bool)
     except (ValueError, KeyError, OSError, zipfile.BadZipFile) as exc:
         _fail(source, f"corrupt payload ({exc})")
     n = len(addresses)
-    if exemplars.shape != (n, FEATURE_DIM) or known.shape != (n, FEATURE_DIM):
+    if (exemplars.shape != (n, FEATURE_DIM) or known.shape != (n, FEATURE_DIM)
+            or stored.shape != (n,)):
         _fail(source, f"incompatible exemplar shapes {exemplars.shape} / {known.shape}")
     if n and (addresses.min() < 0 or addresses.max() >= n_addresses):
         _fail(source, f"corrupt: exemplar addresses outside [0, {n_addresses})")
@@ -144,7 +154,8 @@ def decode_snapshot(data: bytes, source: str = "<bytes>") -> MemorySnapshot:
         _fail(source, "corrupt: some address has no exemplar")
     weights = {k[len(_WEIGHT_PREFIX):]: v for k, v in arrays.items()
                if k.startswith(_WEIGHT_PREFIX)}
-    return MemorySnapshot(config, seed, n_addresses, exemplars, known, addresses, weights)
+    return MemorySnapshot(config, seed, n_addresses, exemplars, known, addresses, weights,
+                          stored)
 
 
 def save_snapshot(snapshot: MemorySnapshot, path: str | os.PathLike[str],

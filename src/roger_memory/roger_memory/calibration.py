@@ -1,0 +1,217 @@
+"""Calibration of the memory's noise model from the robot's own looks, without labels.
+
+What the robot knows about its looks, and uses here:
+
+* the looks of one spatial-map entry (one place, visited in one or several foci: after the
+  attention shift, after a visual and after a haptic improvement) show one object: the
+  spatial map associated them by position. Their differences are the robot's own measure
+  of how much its features scatter for one object (``entry_scale``);
+* looks of two different entries may show two copies of one category (seen from another
+  place, so with other shading, distance and yaw) or two different categories. Which pairs
+  are which is not known; a two-component mixture over the pairs' feature differences
+  (expectation-maximisation, as in Fellegi-Sunter record linkage) separates them: a
+  "same category" component, per feature a Gaussian core of scale sigma_f (with a small
+  outlier share), against a "different" component, the empirical distribution of all
+  differences between entries. Its sigma_f is the category-level spread of each feature
+  (``feature_scale``), floored by ``entry_scale``.
+
+The acceptance distance is the ``identify_quantile`` of the robot's own repeat looks:
+the root-mean-square of the per-feature z-values, z_f = difference / (sqrt(2) sigma_f),
+of same-entry pairs measured with their own scale; the same distance is then applied with
+the category scale. The per-feature veto is the ``veto_quantile`` of the same-entry
+differences: a difference the robot never sees between two looks of one object.
+
+Pure numpy; no label is read. Labels (object, category) only score the result elsewhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from roger_common.types import FEATURE_DIM
+
+#: Bins of the |difference| histogram of the "different" component.
+_EDGES = np.concatenate([[0.0], np.geomspace(1e-3, 1.0, 40), [np.inf]])
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What :func:`calibrate` measured.
+
+    Attributes:
+        feature_scale: Per feature, the category-level spread sigma_f of one look.
+        entry_scale: Per feature, the spread of one look among the looks of one entry.
+        identify_distance: RMS z-distance within which a look is taken for a repeat.
+        noise_dof: Degrees of freedom of a multivariate Student-t whose RMS has the same
+            ``identify_quantile`` as the robot's own repeat looks (their tail).
+        veto: Per feature, the largest difference seen between two looks of one entry.
+        same_share: Share of the between-entry pairs the mixture calls same-category.
+        pairs_same_entry: Number of same-entry pairs used.
+        pairs_between: Number of between-entry pairs used.
+    """
+
+    feature_scale: np.ndarray
+    entry_scale: np.ndarray
+    identify_distance: float
+    noise_dof: float
+    veto: np.ndarray
+    same_share: float
+    pairs_same_entry: int
+    pairs_between: int
+
+
+def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Root-mean-square z over the common features; z_f = delta_f / (sqrt(2) scale_f).
+
+    Args:
+        delta: (n, F) differences of two looks.
+        common: (n, F) features known in both.
+        scale: (F,) spread of one look.
+
+    Returns:
+        (n,) distances; inf where nothing is common.
+    """
+    z2 = (delta / (np.sqrt(2.0) * scale)) ** 2 * common
+    n = common.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(z2.sum(axis=1) / np.maximum(n, 1)), np.inf)
+
+
+def _pairs(run: np.ndarray, entry: np.ndarray, same_entry: bool, max_pairs: int,
+           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    parts_i, parts_j = [], []
+    for r in np.unique(run):
+        idx = np.flatnonzero(run == r)
+        i, j = np.triu_indices(len(idx), 1)
+        i, j = idx[i], idx[j]
+        keep = (entry[i] == entry[j]) if same_entry else (entry[i] != entry[j])
+        parts_i.append(i[keep])
+        parts_j.append(j[keep])
+    i, j = np.concatenate(parts_i), np.concatenate(parts_j)
+    if len(i) > max_pairs:
+        pick = np.sort(rng.choice(len(i), max_pairs, replace=False))
+        i, j = i[pick], j[pick]
+    return i, j
+
+
+def _robust_scale(delta: np.ndarray, common: np.ndarray) -> np.ndarray:
+    """Per feature, the spread of one look from pair differences (MAD, Gaussian-consistent)."""
+    out = np.full(delta.shape[1], np.nan)
+    for f in range(delta.shape[1]):
+        d = np.abs(delta[common[:, f], f])
+        if d.size >= 5:
+            out[f] = 1.4826 * np.median(d) / np.sqrt(2.0)
+    return out
+
+
+def student_t_dof(distance: float, quantile: float, dims: int, seed: int = 0,
+                  samples: int = 200_000) -> float:
+    """Degrees of freedom nu of a ``dims``-variate Student-t (unit Gaussian scale) whose
+    RMS over the dims has ``distance`` as its ``quantile``; 100 when even a Gaussian's
+    quantile is as large (no heavier tail than a Gaussian's needed).
+
+    Monte Carlo with a fixed seed: RMS^2 = (chi2_dims / dims) / (chi2_nu / nu).
+    """
+    num = np.random.default_rng(seed).chisquare(dims, samples) / dims
+
+    def q(nu: float) -> float:
+        den = np.random.default_rng(seed + 1).chisquare(nu, samples) / nu
+        return float(np.sqrt(np.quantile(num / den, quantile)))
+
+    lo, hi = 1.0, 100.0
+    if q(hi) >= distance:
+        return hi
+    for _ in range(40):
+        mid = np.sqrt(lo * hi)
+        if q(mid) > distance:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.sqrt(lo * hi))
+
+
+def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
+              identify_quantile: float = 0.95, veto_quantile: float = 0.999,
+              outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
+              max_pairs: int = 400_000, seed: int = 0) -> Calibration:
+    """Measure the noise model from looks grouped by run and spatial-map entry.
+
+    Args:
+        features: (n, FEATURE_DIM) looks as sent to the memory (unknown entries ignored).
+        known: (n, FEATURE_DIM) their known masks.
+        run: (n,) run of each look (pairs are formed within a run only: entry ids are
+            per run).
+        entry: (n,) spatial-map entry of each look.
+        identify_quantile: Share of the robot's own repeat looks the acceptance distance
+            keeps.
+        veto_quantile: Quantile of same-entry differences that sets the veto.
+        outlier_share: Share of the same component's differences, per feature, allowed to
+            be outliers (a bad look), drawn from the "different" distribution.
+        iterations: EM iterations.
+        min_common: Pairs with fewer common known features are not used for the distance.
+        max_pairs: Pairs kept per kind (a seeded subsample beyond that).
+        seed: Seed of the subsample.
+
+    Returns:
+        The Calibration.
+
+    Raises:
+        ValueError: Too few pairs of either kind to estimate a scale.
+    """
+    x = np.asarray(features, np.float64)
+    k = np.asarray(known, bool)
+    if x.shape[1:] != (FEATURE_DIM,) or k.shape != x.shape:
+        raise ValueError(f"features and known must be (n, {FEATURE_DIM})")
+    run = np.asarray(run)
+    entry = np.asarray(entry)
+    rng = np.random.default_rng(seed)
+    i0, j0 = _pairs(run, entry, True, max_pairs, rng)
+    i1, j1 = _pairs(run, entry, False, max_pairs, rng)
+    if len(i0) < 50 or len(i1) < 50:
+        raise ValueError(f"too few pairs: {len(i0)} same-entry, {len(i1)} between entries")
+    d0, c0 = x[i0] - x[j0], k[i0] & k[j0]
+    entry_scale = _robust_scale(d0, c0)
+    if not np.all(np.isfinite(entry_scale)):
+        raise ValueError("some feature is never known in two looks of one entry")
+    entry_scale = np.maximum(entry_scale, 1e-4)
+
+    d1, c1 = x[i1] - x[j1], k[i1] & k[j1]
+    a1 = np.abs(d1)
+    feat = np.arange(FEATURE_DIM)[None, :]
+    bins = np.clip(np.searchsorted(_EDGES, a1, side="right") - 1, 0, len(_EDGES) - 2)
+    dens = np.empty((FEATURE_DIM, len(_EDGES) - 1))
+    widths = np.diff(_EDGES)
+    widths[-1] = 1.0
+    for f in range(FEATURE_DIM):
+        h = np.bincount(bins[c1[:, f], f], minlength=len(_EDGES) - 1) + 0.5
+        dens[f] = h / h.sum() / widths
+    log_u = np.log(dens[feat, bins])
+    scale = 2.0 * entry_scale
+    share = 0.1
+    log_eps, log_core = np.log(outlier_share), np.log(1.0 - outlier_share)
+    for _ in range(iterations):
+        s = np.sqrt(2.0) * scale
+        log_g = np.log(2.0) - 0.5 * np.log(2 * np.pi) - np.log(s) - 0.5 * (d1 / s) ** 2
+        log_m = np.logaddexp(log_core + log_g, log_eps + log_u)
+        a = np.log(share) + (log_m * c1).sum(axis=1)
+        b = np.log(1.0 - share) + (log_u * c1).sum(axis=1)
+        resp = 1.0 / (1.0 + np.exp(np.clip(b - a, -50.0, 50.0)))
+        share = float(np.clip(resp.mean(), 1e-3, 0.999))
+        core = np.exp(log_core + log_g - log_m)
+        w = resp[:, None] * core * c1
+        scale = np.maximum(np.sqrt((w * d1 ** 2).sum(axis=0) / (2.0 * w.sum(axis=0))),
+                           entry_scale)
+
+    n_common = c0.sum(axis=1)
+    own = rms_z(d0, c0, entry_scale)[n_common >= min_common]
+    identify_distance = float(np.quantile(own, identify_quantile))
+    veto = np.array([np.quantile(np.abs(d0[c0[:, f], f]), veto_quantile)
+                     for f in range(FEATURE_DIM)])
+    dims = int(np.median(n_common[n_common >= min_common]))
+    dof = student_t_dof(identify_distance, identify_quantile, dims, seed)
+    return Calibration(feature_scale=scale, entry_scale=entry_scale,
+                       identify_distance=identify_distance, noise_dof=dof, veto=veto,
+                       same_share=share,
+                       pairs_same_entry=len(i0), pairs_between=len(i1))
