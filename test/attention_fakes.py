@@ -44,7 +44,8 @@ class FakeWorld:
             else:
                 features[WEIGHT_INDEX], known[WEIGHT_INDEX] = 0.0, False
             out.append(Roi(roi_id=k, bbox=(10 * k, 0, 10 * k + 8, 8), position=o.position,
-                           features=features, known=known, activation=o.activation))
+                           features=features, known=known, activation=o.activation,
+                           size_m=0.06))
         return out
 
     @staticmethod

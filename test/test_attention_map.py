@@ -225,6 +225,13 @@ def test_possible_places_of_real_objects() -> None:
     assert not m.possible(at(0.5, 0.0, float("nan")))
 
 
+@pytest.mark.parametrize("size_m", [0.0, float("nan")])
+def test_an_unmeasured_size_leaves_only_the_height_ceiling(size_m: float) -> None:
+    m = SpatialMap(SETTLE)
+    assert m.possible(at(0.5, 0.0, 0.3, size_m))     # a producer that fills no size_m
+    assert not m.possible(at(0.5, 0.0, SETTLE.max_object_height + 0.2, size_m))
+
+
 def test_the_consistency_radius_is_the_robots_own_measured_jitter() -> None:
     m = SpatialMap(dataclasses.replace(SETTLE, jitter_samples=10))
     assert m.consistency_radius() == SETTLE.jitter_prior

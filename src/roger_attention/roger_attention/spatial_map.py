@@ -201,13 +201,17 @@ class SpatialMap:
         Objects rest on the ground: a ROI's centre below the ground by more than the
         consistency radius, above ``max_object_height``, or higher above the ground than
         ``max_height_per_width`` times its own measured width (plus the radius) is a
-        false match of the two retinas, never an object.
+        false match of the two retinas, never an object. A ROI whose size was not
+        measured (``size_m`` 0, the message default, or not finite: a producer that does
+        not fill it) is held to ``max_object_height`` alone.
         """
         cfg = self.config
         tolerance = self.consistency_radius()
         z = float(roi.position[2])
         width = float(roi.size_m)
-        ceiling = min(cfg.max_object_height, cfg.max_height_per_width * width)
+        ceiling = cfg.max_object_height
+        if np.isfinite(width) and width > 0.0:
+            ceiling = min(ceiling, cfg.max_height_per_width * width)
         return bool(np.isfinite(roi.position).all()) and -tolerance <= z <= ceiling + tolerance
 
     def update(self, rois: Sequence[Roi], now: float,
