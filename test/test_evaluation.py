@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from roger_common.types import Action, ObjectSpec
 from roger_experiments.compare import RunResult, check_claims, sign_test_p, table2
-from roger_experiments.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
+from roger_experiments.evaluation import (
+    CycleRow,
+    RunRecorder,
+    RunScorer,
+    counters_from_rows,
+    object_under_window,
+)
 
 S, V, H, M = (int(a) for a in Action)
 
@@ -45,6 +52,41 @@ def test_map_update_takes_the_object_last_seen_for_its_roi():
     assert scorer.true_object_for(S, 5, "b") == "b"
     assert scorer.true_object_for(M, 4, None) == "a"
     assert scorer.true_object_for(M, 9, None) is None
+
+
+def test_a_lost_cycle_shows_no_object_and_visits_nothing():
+    # The forgotten entry's window is of an earlier frame: whatever this frame shows
+    # there, no look happened.
+    scorer = RunScorer({"a": obj("a"), "b": obj("b", weight=0.5)})
+    assert scorer.true_object_for(S, 4, "a", "lost") is None
+    scorer.add(row(1, S, None, "lost", roi=4))
+    assert scorer.results()["objects_visited"] == 0
+    assert scorer.true_object_for(M, 4, None) is None   # nothing remembered for roi 4
+
+
+def labels_with(*boxes: tuple[int, int, int, int, int]) -> np.ndarray:
+    img = np.full((40, 40), -1, np.int32)
+    for idx, x0, y0, x1, y1 in boxes:
+        img[y0:y1, x0:x1] = idx
+    return img
+
+
+def test_a_window_shows_an_object_only_when_the_object_fills_most_of_it():
+    names = ("a", "b")
+    # The object spans the window (a margin of a pixel or two): shown.
+    assert object_under_window(labels_with((0, 10, 10, 20, 20)), names, (9, 9, 21, 21)) == "a"
+    # A triangle covers half of its own box: its extent still fills the window.
+    tri = np.full((40, 40), -1, np.int32)
+    for r in range(10):
+        tri[10 + r, 10:11 + r] = 1
+    assert object_under_window(tri, names, (10, 10, 20, 20)) == "b"
+    # Mostly ground, with an object in a corner: no object, no visit.
+    assert object_under_window(labels_with((0, 10, 10, 14, 14)), names, (10, 10, 30, 30)) \
+        is None
+    # Two objects side by side, each half of the window: neither fills it.
+    assert object_under_window(labels_with((0, 10, 10, 20, 30), (1, 20, 10, 30, 30)), names,
+                               (10, 10, 30, 30)) is None
+    assert object_under_window(labels_with(), names, (0, 0, 10, 10)) is None
 
 
 def test_no_identification_gives_no_precision_not_zero():

@@ -101,7 +101,8 @@ class RunMonitor:
         if msg.action != Action.MAP_UPDATE and key in self.labels and msg.x1 > msg.x0:
             labels, names = self.labels[key]
             seen = object_under_window(labels, names, (msg.x0, msg.y0, msg.x1, msg.y1))
-        true_object = self.recorder.scorer.true_object_for(msg.action, msg.entry_id, seen)
+        true_object = self.recorder.scorer.true_object_for(msg.action, msg.entry_id, seen,
+                                                           msg.outcome)
         td = float(msg.td_error)
         p = msg.position
         return CycleRow(

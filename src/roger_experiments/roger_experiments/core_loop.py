@@ -129,10 +129,11 @@ class CoreLoop:
             yield record
 
     def true_object(self, record: CycleRecord) -> str | None:
-        """Ground truth: the object under the attention window of a physical cycle."""
+        """Ground truth: the object that fills the attention window of a physical cycle
+        (None for a map update and for a "lost" cycle, which looked at nothing)."""
         frame = self.last_frame
-        if (record.action == Action.MAP_UPDATE or record.bbox is None or frame is None
-                or frame.left_labels is None):
+        if (record.action == Action.MAP_UPDATE or record.outcome == "lost"
+                or record.bbox is None or frame is None or frame.left_labels is None):
             return None
         return object_under_window(frame.left_labels, frame.label_names, record.bbox)
 
@@ -169,7 +170,8 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
             seen = loop.true_object(record)
             if recorder is not None:
                 true_obj = recorder.scorer.true_object_for(int(record.action),
-                                                           record.entry_id, seen)
+                                                           record.entry_id, seen,
+                                                           record.outcome)
                 recorder.add(row_from_record(record, true_obj, loop.sim.sim_time))
                 recorder.counters = record.counters.as_dict()
     finally:

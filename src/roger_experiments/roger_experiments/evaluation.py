@@ -9,7 +9,8 @@ Scoring rules (issue 7):
   first stored from an object of the same category as the one in view;
 - novelty_precision: share of new-object detections made while no object of that category
   was yet in memory;
-- objects_visited: world objects that were under the attention window at least once.
+- objects_visited: world objects that filled the attention window at least once
+  (``object_under_window``); a "lost" cycle shows no object and visits nothing.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ CSV_COLUMNS: tuple[str, ...] = (
     "cycle", "state", "action", "reward", "td_error", "roi", "true_object", "outcome",
     "state_after", "address", "x", "y", "z", "sim_time",
 )
+#: Share of the attention window's area an object's extent must exceed for the window to
+#: show that object (a visit). Measured on three worlds: windows holding one object reach
+#: 0.67 or more, windows spanning two objects 0.26-0.53 for the larger (docs/attention.md).
+WINDOW_FILL = 0.5
 ACTION_NAMES: dict[int, str] = {
     Action.ATTENTION_SHIFT: "attention_shift",
     Action.VISUAL_IMPROVEMENT: "visual_improvement",
@@ -70,7 +75,14 @@ class CycleRow:
 
 def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
                         bbox: tuple[int, int, int, int]) -> str | None:
-    """The world object most of the attention window's pixels show; None for the ground.
+    """The world object that fills most of the attention window; None when none does.
+
+    The candidate is the object with the most pixels in the window. It fills the window
+    when the bounding box of those pixels covers more than WINDOW_FILL of the window's
+    area: the object's extent, not its pixel count, because a prism covers half of its
+    own bounding box and a ROI's box keeps a margin around the object (docs/attention.md
+    has the measured distribution). A window spanning two objects, or mostly ground,
+    shows none.
 
     Args:
         labels: Per-pixel object index of the left retina, -1 for ground and robot.
@@ -79,10 +91,14 @@ def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
     """
     x0, y0, x1, y1 = bbox
     window = labels[max(0, y0):max(0, y1), max(0, x0):max(0, x1)]
-    window = window[window >= 0]
-    if window.size == 0:
+    objects = window[window >= 0]
+    if objects.size == 0:
         return None
-    idx = int(np.bincount(window).argmax())
+    idx = int(np.bincount(objects).argmax())
+    rows, cols = np.nonzero(window == idx)
+    extent = (int(rows.max() - rows.min()) + 1) * (int(cols.max() - cols.min()) + 1)
+    if extent <= WINDOW_FILL * window.size:
+        return None
     return names[idx] if idx < len(names) else None
 
 
@@ -111,8 +127,16 @@ class RunScorer:
             return None
         return self.objects[name].category()
 
-    def true_object_for(self, action: int, roi: int, seen: str | None) -> str | None:
-        """The object under the window: seen now, or (map update) last seen for that ROI."""
+    def true_object_for(self, action: int, roi: int, seen: str | None,
+                        outcome: str = "") -> str | None:
+        """The object under the window: seen now, or (map update) last seen for that ROI.
+
+        A "lost" cycle looked at nothing: the entry's window is one of an earlier frame
+        (the place was forgotten because this frame showed nothing there), so scoring it
+        against this frame's labels would credit a look that never happened.
+        """
+        if outcome == "lost":
+            return None
         if action == Action.MAP_UPDATE:
             return self.last_true_of_roi.get(roi)
         self.last_true_of_roi[roi] = seen
