@@ -51,7 +51,7 @@ def test_every_object_is_visited(policy, name, make):
         seen, cycles = visit_all(loop, names, budget)
         c = loop.ctl.counters
         assert c.attention_shifts + c.improvements + c.map_updates == c.cycles
-        assert c.map_updates == c.positive_identifications + c.new_objects
+        assert c.map_updates == c.positive_identifications + c.new_objects + c.remaps
     finally:
         loop.close()
     assert names <= seen, f"{policy} on {name}: never visited {sorted(names - seen)} " \

@@ -20,7 +20,7 @@ CONTRACT_COLUMNS = ["cycle", "state", "action", "reward", "td_error", "roi", "tr
 METRIC_KEYS = {"policy", "world", "seed", "cycles", "attention_shifts", "improvements",
                "positive_identifications", "new_objects", "map_updates", "objects_in_world",
                "objects_visited", "identification_precision", "novelty_precision",
-               "wall_seconds"}
+               "wall_seconds", "remaps", "remap_precision"}
 
 
 def descendants(pid: int) -> set[int]:
@@ -57,7 +57,7 @@ def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_dom
     assert metrics["cycles"] == 8 and metrics["policy"] == policy
     assert metrics["attention_shifts"] + metrics["improvements"] + metrics["map_updates"] == 8
     assert metrics["map_updates"] == (metrics["positive_identifications"]
-                                      + metrics["new_objects"])
+                                      + metrics["new_objects"] + metrics["remaps"])
     assert metrics["objects_in_world"] == 4 and metrics["objects_visited"] >= 1
     with open(out / "cycles.csv") as fh:
         rows = list(csv.reader(fh))

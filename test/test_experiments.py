@@ -30,7 +30,8 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
         m = json.loads((out / "runs" / f"{policy}_seed0" / "metrics.json").read_text())
         assert m["cycles"] == 6
         assert m["attention_shifts"] + m["improvements"] + m["map_updates"] == 6
-        assert m["map_updates"] == m["positive_identifications"] + m["new_objects"]
+        assert m["map_updates"] == (m["positive_identifications"] + m["new_objects"]
+                                   + m["remaps"])
     assert "Q-learning performs more attention shifts" in (out / "report.md").read_text()
 
 

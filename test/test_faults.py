@@ -100,7 +100,7 @@ def test_kill_each_node_mid_run_loses_nothing(no_leaks, tmp_path, ros_domain):
     assert metrics["attention_shifts"] + metrics["improvements"] + metrics["map_updates"] \
         == cycles
     assert metrics["map_updates"] == metrics["positive_identifications"] \
-        + metrics["new_objects"]
+        + metrics["new_objects"] + metrics["remaps"]
     # Every stored object is in the memory file, once.
     stored = sum(1 for r in rows if r[7] == "stored")
     assert stored == metrics["new_objects"] >= 1

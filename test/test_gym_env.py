@@ -65,7 +65,8 @@ def test_random_episodes_follow_the_fsm_and_table2_identities():
                         (("100", "101"), ("010", "011"))
                 c = info["counters"]
                 assert c["attention_shifts"] + c["improvements"] + c["map_updates"] == c["cycles"]
-                assert c["map_updates"] == c["positive_identifications"] + c["new_objects"]
+                assert c["map_updates"] == (c["positive_identifications"] + c["new_objects"]
+                                             + c["remaps"])
                 if truncated:
                     break
             assert truncated

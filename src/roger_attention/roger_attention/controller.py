@@ -27,6 +27,7 @@ Nothing here blocks or does I/O; the controller only keeps the state between the
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -61,7 +62,7 @@ from roger_common.types import (
 
 #: Outcome strings of a CycleRecord.
 OUTCOMES: tuple[str, ...] = (
-    "identified", "new", "undetermined", "stored", "mapped", "lost", "none")
+    "identified", "new", "undetermined", "stored", "mapped", "remapped", "lost", "none")
 #: Goal ids of the looks of the initial scan (not control cycles) start here, far above the
 #: cycles' own ids (1, 2, ...). Each look has an id of its own: with one shared id, a
 #: retried look's late frame answered the next look and started a second chain of cycles.
@@ -120,7 +121,9 @@ class CycleRecord:
         entry_id: Entry in focus; -1 when none.
         position: Its position, robot frame (None when none).
         bbox: Its freshest ROI's bounding box in the left retina (None when none).
-        outcome: One of OUTCOMES.
+        outcome: One of OUTCOMES. A map update is "stored" (a new object), "mapped" (a
+            positive identification: an entry not mapped before) or "remapped" (an
+            entry mapped before, identified and mapped again).
         address: Long-term-memory address concerned; -1 when none.
         counters: Copy of the run counters after the cycle.
     """
@@ -201,6 +204,11 @@ class AttentionController:
         self._scan: list[Position] = list(config.scan_targets)
         self._looks = 0
         self._restored_places: list[tuple[Position, int]] = []
+        # Entries mapped at some time that are still in the map (their latest position),
+        # and the places of those that left it since (forgotten or vanished): what tells a
+        # remap from a positive identification.
+        self._ever_mapped: dict[int, Position] = {}
+        self._gone_places: list[Position] = []
 
     @property
     def state(self) -> State:
@@ -225,7 +233,12 @@ class AttentionController:
         """
         if not self._scan:
             if self._restored_places:
-                self.spatial_map.restore_mapped(self._restored_places)
+                for entry_id in self.spatial_map.restore_mapped(self._restored_places):
+                    self._ever_mapped[entry_id] = self.spatial_map.entries[entry_id].position
+                radius = self.config.spatial_map.association_radius
+                self._gone_places += [  # places mapped before the restart not seen again
+                    p for p, _ in self._restored_places
+                    if not any(math.dist(p, q) <= radius for q in self._ever_mapped.values())]
                 self._restored_places = []
             return None
         self._looks += 1
@@ -253,6 +266,7 @@ class AttentionController:
             "looks": self._looks, "policy_state": self.policy.state_dict(),
             "mapped": [{"position": list(p), "address": int(a)}
                        for p, a in self.spatial_map.mapped_places()],
+            "mapped_before": [list(p) for p in self._places_mapped_before()],
         }
 
     def restore_state(self, state: dict[str, Any]) -> None:
@@ -261,7 +275,8 @@ class AttentionController:
         Counters and the policy's state are taken back. Goal and request ids go on after
         the saved ones, skipping one each: the cycle in flight when the driver stopped may
         have used them. The places mapped then are mapped again at the end of the next
-        initial scan (the map itself is rebuilt by looking).
+        initial scan (the map itself is rebuilt by looking); those mapped before and
+        unmapped then still make an identification there a remap.
 
         Raises:
             ValueError: The state is not one of this format and policy, or is corrupt.
@@ -275,7 +290,8 @@ class AttentionController:
             looks = int(state["looks"])
             places = [(tuple(float(v) for v in p["position"]), int(p["address"]))
                       for p in state["mapped"]]
-            if any(len(p) != 3 for p, _ in places):
+            before = [tuple(float(v) for v in p) for p in state.get("mapped_before", [])]
+            if any(len(p) != 3 for p, _ in places) or any(len(p) != 3 for p in before):
                 raise ValueError("a mapped place is not an (x, y, z) position")
             self.policy.load_state_dict(state["policy_state"])
         except (KeyError, TypeError, AttributeError) as exc:
@@ -284,6 +300,8 @@ class AttentionController:
         self._next_goal_id, self._next_request_id = goal_id + 1, request_id + 1
         self._looks = looks
         self._restored_places = places  # type: ignore[assignment]
+        self._gone_places = before  # type: ignore[assignment]
+        self._ever_mapped = {}
 
     @property
     def in_cycle(self) -> bool:
@@ -309,6 +327,7 @@ class AttentionController:
         changes = self.spatial_map.update(rois, now, visible)
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
+        self._track_mapped()
         return changes
 
     def begin_cycle(self, now: float) -> CyclePlan:
@@ -409,6 +428,7 @@ class AttentionController:
                 # a spurious region or an object that went away. Forget the place, so the
                 # policy shifts on instead of improving nothing.
                 self.spatial_map.forget(entry.entry_id)
+                self._track_mapped()
                 forgotten, entry = entry, None
             address = result.address if matched is MatchOutcome.IDENTIFIED and result else -1
             if matched is MatchOutcome.IDENTIFIED:
@@ -418,7 +438,7 @@ class AttentionController:
                 self.spatial_map.clear_mapping(entry.entry_id)
             mapped = entry is not None and entry.mapped
             next_state = transition(state, plan.action, matched, mapped)
-        self._count(plan.action, state)
+        self._count(plan.action, outcome)
         r = reward(state, plan.action, next_state, self.config.rewards)
         self._state = next_state
         if self.focus is not None and self.focus not in self.spatial_map:
@@ -452,17 +472,54 @@ class AttentionController:
                 and address != mapped_address)
 
     def _map_update(self, state: State, result: MatchResult | None) -> tuple[str, int]:
+        entry = self.spatial_map.get(self.focus)
+        again = entry is not None and self._mapped_before(entry)
         if state.novelty:
             address = result.address if result is not None and result.address >= 0 else -1
             outcome = "stored"
         else:
             address = self._focus_address
-            outcome = "mapped"
-        if self.focus is not None and self.focus in self.spatial_map:
-            self.spatial_map.set_mapped(self.focus, address)
+            outcome = "remapped" if again else "mapped"
+        if entry is not None:
+            self.spatial_map.set_mapped(entry.entry_id, address)
+            self._ever_mapped[entry.entry_id] = entry.position
         return outcome, address
 
-    def _count(self, action: Action, state: State) -> None:
+    def _mapped_before(self, entry: MapEntry) -> bool:
+        """Whether the entry, or the place it stands at, was mapped before.
+
+        The entry itself was, if it lost its mapping since (it drifted, or a match
+        contradicted it). Its place was, if an entry mapped there left the map (forgotten
+        or vanished) and this one settled within the association radius of where that one
+        was last seen: that place is taken, so it makes one remap at most.
+        """
+        if entry.entry_id in self._ever_mapped:
+            return True
+        radius = self.config.spatial_map.association_radius
+        near = [(math.dist(p, entry.position), k) for k, p in enumerate(self._gone_places)]
+        near = [(d, k) for d, k in near if d <= radius]
+        if not near:
+            return False
+        del self._gone_places[min(near)[1]]
+        return True
+
+    def _track_mapped(self) -> None:
+        """Follow the entries mapped at some time; keep the places of those that left."""
+        for entry_id, position in list(self._ever_mapped.items()):
+            entry = self.spatial_map.get(entry_id)
+            if entry is None:
+                del self._ever_mapped[entry_id]
+                self._gone_places.append(position)
+            else:
+                self._ever_mapped[entry_id] = entry.position
+
+    def _places_mapped_before(self) -> list[Position]:
+        """Places mapped once and not mapped now (a restart keeps them)."""
+        unmapped = [p for eid, p in self._ever_mapped.items()
+                    if not self.spatial_map.entries[eid].mapped]
+        return [*self._gone_places, *unmapped]
+
+    def _count(self, action: Action, outcome: str) -> None:
         c = self.counters
         c.cycles += 1
         if action is Action.ATTENTION_SHIFT:
@@ -474,8 +531,10 @@ class AttentionController:
         else:
             # Allowed only with novelty or identity 1, so Table 2's second identity holds.
             c.map_updates += 1
-            if state.novelty:
+            if outcome == "stored":
                 c.new_objects += 1
+            elif outcome == "remapped":
+                c.remaps += 1
             else:
                 c.positive_identifications += 1
 

@@ -44,7 +44,7 @@ def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_siz
                    visual_improvements=c.visual_improvements,
                    haptic_improvements=c.haptic_improvements,
                    positive_identifications=c.positive_identifications,
-                   new_objects=c.new_objects, map_updates=c.map_updates,
+                   new_objects=c.new_objects, map_updates=c.map_updates, remaps=c.remaps,
                    map_entries=map_entries, memory_size=memory_size, done=done)
 
 

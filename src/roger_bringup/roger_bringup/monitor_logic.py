@@ -28,7 +28,8 @@ LABELS_WAIT_S = 2.0
 #: Metrics message fields that are Table 2 counters.
 COUNTER_FIELDS: tuple[str, ...] = (
     "cycles", "attention_shifts", "improvements", "visual_improvements",
-    "haptic_improvements", "positive_identifications", "new_objects", "map_updates")
+    "haptic_improvements", "positive_identifications", "new_objects", "map_updates",
+    "remaps")
 
 
 def spec_from_msg(o: Any) -> ObjectSpec:
@@ -140,6 +141,7 @@ class RunMonitor:
 
     def on_metrics(self, msg: Any) -> None:
         """Live counters; ``done`` ends the run."""
-        self.recorder.counters = {k: int(getattr(msg, k)) for k in COUNTER_FIELDS}
+        # A bag recorded before a counter existed has none: it counts 0 there.
+        self.recorder.counters = {k: int(getattr(msg, k, 0)) for k in COUNTER_FIELDS}
         if msg.done:
             self.done = True

@@ -260,7 +260,12 @@ class RunCounters:
     """The counters of Table 2, kept so that its two identities hold by construction:
 
     attention_shifts + improvements + map_updates == cycles, and
-    map_updates == positive_identifications + new_objects.
+    map_updates == positive_identifications + new_objects + remaps.
+
+    A positive identification is the identification that maps an entry (a place of the
+    spatial map) not mapped before; an identification that maps again an entry that was
+    mapped and lost its mapping since (it drifted, was contradicted, or was lost from the
+    map and seen again at its place) is a remap.
     """
 
     cycles: int = 0
@@ -270,6 +275,7 @@ class RunCounters:
     positive_identifications: int = 0
     new_objects: int = 0
     map_updates: int = 0
+    remaps: int = 0
 
     @property
     def improvements(self) -> int:
@@ -287,6 +293,7 @@ class RunCounters:
             "positive_identifications": self.positive_identifications,
             "new_objects": self.new_objects,
             "map_updates": self.map_updates,
+            "remaps": self.remaps,
         }
 
 

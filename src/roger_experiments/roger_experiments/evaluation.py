@@ -5,8 +5,9 @@ never see. Pure Python: the ROS monitor and the in-process loop both feed it.
 
 Scoring rules (issue 7):
 - objects with identical shape, size, intensity, weight and texture are one category;
-- identification_precision: share of positive identifications whose memory address was
-  first stored from an object of the same category as the one in view;
+- identification_precision: share of positive identifications (first mappings) whose
+  memory address was first stored from an object of the same category as the one in view;
+- remap_precision: the same for remaps (an entry mapped before, identified again);
 - novelty_precision: share of new-object detections made while no object of that category
   was yet in memory;
 - objects_visited: world objects that filled the attention window at least once
@@ -111,6 +112,8 @@ class RunScorer:
     address_category: dict[int, Any] = field(default_factory=dict)
     identifications: int = 0
     correct_identifications: int = 0
+    remaps: int = 0
+    correct_remaps: int = 0
     detections: int = 0
     correct_detections: int = 0
     last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
@@ -157,11 +160,15 @@ class RunScorer:
             if row.address >= 0:
                 self.address_category.setdefault(row.address, cat)
             self.cycles_since_new = 0
-        elif row.outcome == "mapped":
-            self.identifications += 1
+        elif row.outcome in ("mapped", "remapped"):
             stored = self.address_category.get(row.address, None)
-            if cat is not None and stored == cat:
-                self.correct_identifications += 1
+            correct = int(cat is not None and stored == cat)
+            if row.outcome == "mapped":
+                self.identifications += 1
+                self.correct_identifications += correct
+            else:
+                self.remaps += 1
+                self.correct_remaps += correct
 
     def results(self) -> dict[str, Any]:
         """The ground-truth part of metrics.json."""
@@ -173,6 +180,7 @@ class RunScorer:
             "identification_precision": share(self.correct_identifications,
                                               self.identifications),
             "novelty_precision": share(self.correct_detections, self.detections),
+            "remap_precision": share(self.correct_remaps, self.remaps),
         }
 
 
@@ -224,7 +232,7 @@ class RunRecorder:
         out: dict[str, Any] = dict(self.meta)
         for key in ("cycles", "attention_shifts", "improvements", "visual_improvements",
                     "haptic_improvements", "positive_identifications", "new_objects",
-                    "map_updates"):
+                    "map_updates", "remaps"):
             out[key] = int(c.get(key, 0))
         out.update(self.scorer.results())
         out["wall_seconds"] = round(float(wall_seconds), 3)
@@ -245,6 +253,8 @@ def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
     actions = Counter(r.action for r in rows)
     stored = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "stored")
     mapped = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "mapped")
+    remapped = sum(1 for r in rows
+                   if r.action == Action.MAP_UPDATE and r.outcome == "remapped")
     return {
         "cycles": len(rows),
         "attention_shifts": actions[Action.ATTENTION_SHIFT],
@@ -254,4 +264,5 @@ def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
         "positive_identifications": mapped,
         "new_objects": stored,
         "map_updates": actions[Action.MAP_UPDATE],
+        "remaps": remapped,
     }

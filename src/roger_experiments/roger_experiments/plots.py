@@ -29,6 +29,7 @@ def cumulative(rows: list[dict[str, str]], what: str) -> np.ndarray:
             "positive_identifications": a == "map_update" and o == "mapped",
             "new_objects": a == "map_update" and o == "stored",
             "map_updates": a == "map_update",
+            "remaps": a == "map_update" and o == "remapped",
         }[what]
     return np.cumsum([1 if hit(r) else 0 for r in rows])
 
