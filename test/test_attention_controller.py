@@ -11,6 +11,7 @@ from attention_fakes import FakeMemory, FakeWorld, Obj, check_table2, three_obje
 
 from roger_attention.config import AttentionConfig, SpatialMapConfig
 from roger_attention.controller import OUTCOMES, AttentionController, CyclePlan, CycleRecord
+from roger_attention.fsm import State
 from roger_attention.fsm_env import FsmEnv, train_qtable
 from roger_attention.policies import QLearningPolicy, make_policy
 from roger_attention.qlearning import QTable
@@ -268,6 +269,15 @@ def test_qlearning_policy_switch_learns_and_maps_everything() -> None:
     assert d.ctl.counters.new_objects == 3
     rewarded = [r for r in records if r.reward > 0]
     assert rewarded and all(r.action is M for r in rewarded)
+
+
+def test_no_transition_is_terminal_so_the_shift_is_valued() -> None:
+    d = Driver(make_ctl("qlearning", seed=3), FakeWorld(three_objects()), FakeMemory())
+    d.run(80)
+    table = d.ctl.policy.table
+    # A shift is worth gamma times the best value of the state it lands in, and a map
+    # update what follows it: both learnt like any other action (docs/attention.md).
+    assert table.value(State.from_bits("101"), S) > 0.0, table.q
 
 
 def test_learned_greedy_table_runs_without_learning() -> None:

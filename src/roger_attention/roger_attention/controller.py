@@ -40,7 +40,6 @@ from roger_attention.fsm import (
     State,
     allowed_actions,
     check_allowed,
-    is_terminal,
     reward,
     transition,
 )
@@ -443,8 +442,9 @@ class AttentionController:
         self._state = next_state
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
-        td = self.policy.update(state, plan.action, r, next_state, is_terminal(plan.action),
-                                self._allowed())
+        # Never terminal (docs/attention.md, the MDP): a shift is worth what the state it
+        # lands in is worth, a map update what follows it; the run's end only truncates.
+        td = self.policy.update(state, plan.action, r, next_state, False, self._allowed())
         if td is not None:
             self.td_errors.append(td)
         if self.focus is not None:
