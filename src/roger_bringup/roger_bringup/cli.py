@@ -6,8 +6,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from roger_common.errors import RogerError
+
+if TYPE_CHECKING:
+    from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
 DEFAULT_WORLD = Path("worlds/table1.yaml")
@@ -84,32 +88,103 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
-    """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6."""
-    from roger_experiments.compare import compare
+def _training_worlds(files: list[Path] | None, spec: RandomWorlds | None,
+                     folder: Path) -> tuple[list[Path], dict]:
+    """The training world files: the files given, then the random worlds of ``spec``
+    written into ``folder``; and how they were made (for train.json)."""
+    from roger_experiments.train import describe_random, write_worlds
 
-    seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    if args.in_process:
+    worlds = list(files or [])
+    made: dict = {"files": [str(w) for w in worlds]}
+    if spec is not None:
+        worlds += write_worlds(spec.worlds(), folder)
+        made["random"] = describe_random(spec)
+    return worlds, made
+
+
+def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: Path,
+           graph: bool, quiet: bool) -> dict:
+    """Q-learning over ``worlds`` x ``seeds`` into ``out`` (in process unless ``graph``)."""
+    import time
+
+    from roger_experiments.train import train
+
+    if graph:
+        from roger_bringup.run import RunOptions, run_graph
+
+        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
+            return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
+                                        cycles=cycles, seed=seed, qtable=qtable,
+                                        progress=not quiet))
+    else:
         from roger_experiments.core_loop import run_core
         from roger_sim.world import load_world
-        world = load_world(args.world)
+
+        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
+            t0 = time.monotonic()
+            # The loop saves the Q-table it learnt to ``qtable`` when it closes.
+            recorder, _ = run_core(load_world(world), "qlearning", cycles, seed=seed,
+                                   out=run_dir, qtable_path=qtable)
+            assert recorder is not None
+            return recorder.close(time.monotonic() - t0)
+    if (out / "qtable.json").exists():
+        (out / "qtable.json").unlink()  # training starts from a fresh table
+    return train(worlds, seeds, out, run_one, describe=made)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6.
+
+    The Q-learning policy runs a trained Q-table, greedy and frozen: ``--qtable FILE``, or
+    one ``roger train`` learns first (in process) on random worlds other than this one.
+    """
+    from roger_experiments.compare import TrainedTable, compare
+    from roger_experiments.train import RandomWorlds
+    from roger_sim.world import load_world
+
+    world = load_world(args.world)
+    seeds = list(range(args.seed0, args.seed0 + args.seeds))
+    if args.qtable is not None:
+        from roger_attention.qlearning import QTable
+        QTable.load(args.qtable)  # a missing or corrupt table is refused before any run
+        qtable, origin = args.qtable, "given with --qtable"
+    else:
+        spec = RandomWorlds(count=args.train_worlds)
+        train_out = args.out / "train"
+        print(f"training the Q-learning policy first: {spec.count} random worlds (seeds "
+              f"{spec.seed0}-{spec.seed0 + spec.count - 1}) x seeds 0-{args.train_seeds - 1}, "
+              f"{args.cycles} cycles each, in process -> {train_out}")
+        files, made = _training_worlds(None, spec, train_out / "worlds")
+        _train(files, made, list(range(args.train_seeds)), args.cycles, train_out,
+               graph=False, quiet=args.quiet)
+        qtable, origin = train_out / "qtable.json", "trained now by `roger train` (in process)"
+    trained = TrainedTable.of(qtable, world, origin)
+    if trained.world_seen:
+        print(f"roger compare: warning: {args.world} is one of the worlds {qtable} was "
+              "trained on", file=sys.stderr)
+    if args.in_process:
+        from roger_experiments.core_loop import run_core
 
         def run_one(policy: str, seed: int, run_dir: Path) -> dict:
             import time
             t0 = time.monotonic()
-            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir)
+            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir,
+                                   qtable_path=qtable if policy == "qlearning" else None,
+                                   learn=False)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
     else:
         from roger_bringup.run import RunOptions, run_graph
 
         def run_one(policy: str, seed: int, run_dir: Path) -> dict:
-            return run_graph(RunOptions(world=args.world, out=run_dir, policy=policy,
-                                        cycles=args.cycles, seed=seed,
-                                        progress=not args.quiet))
-    result = compare(args.world, seeds, args.out, run_one)
+            return run_graph(RunOptions(
+                world=args.world, out=run_dir, policy=policy, cycles=args.cycles, seed=seed,
+                qtable=qtable if policy == "qlearning" else None, learn=False,
+                progress=not args.quiet))
+    result = compare(args.world, seeds, args.out, run_one, trained=trained)
     print()
     print((args.out / "table2.md").read_text())
+    print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
     for c in result["claims"]:
         print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
     print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
@@ -118,33 +193,22 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """``roger train``: Q-learning over worlds and seeds; writes the Q-table and TD curve."""
-    import time
+    """``roger train``: Q-learning over worlds and seeds; writes the Q-table and Figure 6."""
+    from roger_experiments.train import RandomWorlds
 
-    from roger_experiments.train import train
-
+    count = args.random_worlds
+    if count is None:
+        count = 0 if args.worlds else RandomWorlds().count
+    spec = RandomWorlds(count=count, seed0=args.world_seed0) if count > 0 else None
+    worlds, made = _training_worlds(args.worlds, spec, args.out / "worlds")
+    if not worlds:
+        raise RogerError("roger train: no training world (give --worlds or --random-worlds)")
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    if args.graph:
-        from roger_bringup.run import RunOptions, run_graph
-
-        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
-            return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
-                                        cycles=args.cycles, seed=seed, qtable=qtable,
-                                        progress=not args.quiet))
-    else:
-        from roger_experiments.core_loop import run_core
-        from roger_sim.world import load_world
-
-        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
-            t0 = time.monotonic()
-            # The loop saves the Q-table it learnt to ``qtable`` when it closes.
-            recorder, _ = run_core(load_world(world), "qlearning", args.cycles, seed=seed,
-                                   out=run_dir, qtable_path=qtable)
-            assert recorder is not None
-            return recorder.close(time.monotonic() - t0)
-    summary = train(args.worlds, seeds, args.out, run_one)
-    print(json.dumps(summary, indent=2))
-    print(f"Q-table: {args.out / 'qtable.json'}; TD curve: {args.out / 'td_errors.png'}")
+    summary = _train(worlds, made, seeds, args.cycles, args.out, args.graph, args.quiet)
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("q", "worlds")},
+                     indent=2))
+    print(f"Q-table: {args.out / 'qtable.json'}; Figure 6: {args.out / 'td_errors.png'}; "
+          f"summary: {args.out / 'train.json'}")
     return 0
 
 
@@ -168,6 +232,13 @@ def main(argv: list[str] | None = None) -> None:
         p_cmp.add_argument("--out", type=Path, default=out, help="output folder")
         p_cmp.add_argument("--in-process", action="store_true",
                            help="run the same core loop without ROS (faster, no graph)")
+        p_cmp.add_argument("--qtable", type=Path, default=None,
+                           help="trained Q-table for the Q-learning policy (run greedy, "
+                                "frozen); default: roger train first, into OUT/train")
+        p_cmp.add_argument("--train-worlds", type=int, default=4,
+                           help="without --qtable: random training worlds")
+        p_cmp.add_argument("--train-seeds", type=int, default=2,
+                           help="without --qtable: training seeds per world")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
@@ -180,9 +251,13 @@ def main(argv: list[str] | None = None) -> None:
     p_replay.add_argument("--out", type=Path, default=Path("runs/replay"), help="output folder")
     p_replay.set_defaults(func=cmd_replay)
     p_train = sub.add_parser("train", help="train the Q-learning policy over worlds and seeds")
-    p_train.add_argument("--worlds", type=Path, nargs="+",
-                         default=[Path("worlds/table1.yaml"), Path("worlds/shapes.yaml")],
-                         help="world files to train on, in order")
+    p_train.add_argument("--worlds", type=Path, nargs="+", default=None,
+                         help="world files to train on, in order (default: random worlds)")
+    p_train.add_argument("--random-worlds", type=int, default=None, metavar="N",
+                         help="also train on N random worlds of the demo world's kind "
+                              "(roger_sim.worldgen; default 4 without --worlds, else 0)")
+    p_train.add_argument("--world-seed0", type=int, default=100,
+                         help="seed of the first random world (the next ones follow)")
     p_train.add_argument("--seeds", type=int, default=2, help="seeds per world")
     p_train.add_argument("--seed0", type=int, default=0, help="first seed")
     p_train.add_argument("--cycles", type=int, default=204, help="control cycles per run")

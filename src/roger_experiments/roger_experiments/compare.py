@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_common.atomic import atomic_write_bytes
+from roger_common.types import WorldSpec
 
 POLICIES: tuple[str, ...] = ("qlearning", "straightforward")
 #: Table 2 of the paper, after 204 control loops: (1) Q-learning, (2) simple.
@@ -151,11 +152,87 @@ def table2_markdown(table: dict[str, Any], world: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass(frozen=True)
+class TrainedTable:
+    """The Q-table the Q-learning policy runs, greedy and frozen, and where it came from.
+
+    Attributes:
+        qtable: The table file.
+        origin: How it came: "trained now" (``roger train`` run first) or "given".
+        training: The ``train.json`` written beside it by ``roger train``, if any.
+        world_seen: Whether the evaluation world is among the training worlds (by
+            fingerprint); None when the training is unknown.
+    """
+
+    qtable: Path
+    origin: str
+    training: dict[str, Any] | None
+    world_seen: bool | None
+
+    @classmethod
+    def of(cls, qtable: Path, world: WorldSpec, origin: str) -> TrainedTable:
+        """Describe ``qtable`` for an evaluation on ``world``."""
+        from roger_experiments.train import read_training, world_fingerprint
+
+        training = read_training(qtable)
+        seen = None
+        if training is not None:
+            prints = {w["fingerprint"] for w in training.get("worlds", [])}
+            seen = world_fingerprint(world) in prints
+        return cls(qtable, origin, training, seen)
+
+    def td_errors(self) -> Path | None:
+        """The training's ``td_errors.csv`` (Figure 6), if it is there."""
+        path = self.qtable.with_name("td_errors.csv")
+        return path if path.exists() else None
+
+    def markdown(self) -> str:
+        """What the report says about the table."""
+        lines = ["## The Q-learning policy", "",
+                 f"Greedy and frozen (no learning during these runs): the Q-table "
+                 f"`{self.qtable}`, {self.origin}."]
+        t = self.training
+        if t is None:
+            lines.append("No `train.json` beside it: what it was trained on is unknown.")
+        else:
+            names = ", ".join(f"`{w['name']}`" for w in t.get("worlds", []))
+            seeds = ", ".join(str(s) for s in t.get("seeds", []))
+            lines.append(f"Trained by `roger train` in {t.get('runs')} runs ({t.get('updates')} "
+                         f"Q updates) on the worlds {names} with seeds {seeds}.")
+            lines.append("The evaluation world is **one of the training worlds**: this is no "
+                         "test on an unseen world." if self.world_seen else
+                         "The evaluation world is not among them (compared by content).")
+            first, last = t.get("mean_abs_td_first_10pct"), t.get("mean_abs_td_last_10pct")
+            if first is not None and last is not None:
+                lines.append(f"Mean |TD error| over the first tenth of training {first:.3f}, "
+                             f"over the last tenth {last:.3f} (Figure 6).")
+            changes = t.get("greedy_changes_second_half") or {}
+            moving = {bits: n for bits, n in changes.items() if n}
+            if changes:
+                lines.append(
+                    "In the second half of training the greedy action changed "
+                    + (", ".join(f"{n} times in {bits}" for bits, n in moving.items())
+                       if moving else "in no state")
+                    + (": the values had not settled, and the table run here is where "
+                       "training stopped." if moving else "."))
+            q = t.get("q", {})
+            if q:
+                acts = ["attention_shift", "visual_improvement", "haptic_improvement",
+                        "map_update"]
+                lines += ["", "| state | shift | visual | haptic | map update | greedy |",
+                          "|---|---|---|---|---|---|"]
+                for bits, row in q.items():
+                    cells = [f"{row[a]:.3f}" if a in row else "-" for a in acts]
+                    greedy = ", ".join(t.get("greedy", {}).get(bits, []))
+                    lines.append(f"| {bits} | " + " | ".join(cells) + f" | {greedy} |")
+        return "\n".join(lines) + "\n"
+
+
 def report_markdown(table: dict[str, Any], claims: list[dict[str, Any]], world: str,
-                    world_regions: str) -> str:
+                    policy_note: str = "") -> str:
     """The short report: the table, then each of the paper's claims and whether it holds."""
     lines = ["# Q-learning vs the straightforward policy", "", table2_markdown(table, world),
-             world_regions, "", "## The paper's claims", "",
+             policy_note, "", "## The paper's claims", "",
              "| claim | verdict | holds in | contradicted in | mean difference (Q - simple) "
              "| sign test p |", "|---|---|---|---|---|---|"]
     for c in claims:
@@ -170,29 +247,43 @@ def report_markdown(table: dict[str, Any], claims: list[dict[str, Any]], world: 
 
 
 def write_outputs(out: Path, results: list[RunResult], world: str,
-                  world_regions: str = "") -> dict[str, Any]:
-    """Write table2.json, table2.md, report.md and the three figures."""
+                  trained: TrainedTable | None = None) -> dict[str, Any]:
+    """Write table2.json, table2.md, report.md and the three figures (Figure 6 from the
+    training of the Q-table when its log is there)."""
     from roger_experiments import plots
+    from roger_experiments.train import plot_training, read_td_errors
 
     out.mkdir(parents=True, exist_ok=True)
     table = table2(results)
     claims = check_claims(results)
+    qlearning = None if trained is None else {
+        "qtable": str(trained.qtable), "origin": trained.origin,
+        "evaluation_world_in_training": trained.world_seen,
+        "training": trained.training}
     atomic_write_bytes(out / "table2.json", (json.dumps(
-        {"world": world, "table2": table, "claims": claims}, indent=2) + "\n").encode())
+        {"world": world, "table2": table, "claims": claims, "qlearning": qlearning},
+        indent=2) + "\n").encode())
     atomic_write_bytes(out / "table2.md", table2_markdown(table, world).encode())
+    note = trained.markdown() if trained is not None else ""
     atomic_write_bytes(out / "report.md",
-                       report_markdown(table, claims, world, world_regions).encode())
+                       report_markdown(table, claims, world, note).encode())
     plots.fig4(results, out / "fig4.png")
     plots.fig5(results, out / "fig5.png")
-    plots.fig6(results, out / "fig6.png")
+    if trained is not None and (path := trained.td_errors()) is not None:
+        alpha = float((trained.training or {}).get("alpha", 0.5))
+        plot_training(read_td_errors(path), out / "fig6.png", alpha,
+                      f"the training of {trained.qtable}")
+    else:
+        plots.fig6(results, out / "fig6.png")
     return {"table2": table, "claims": claims}
 
 
 def compare(world: Path, seeds: list[int], out: Path,
             run_one: Callable[[str, int, Path], dict[str, Any]],
-            progress: Callable[[str], None] = print) -> dict[str, Any]:
+            progress: Callable[[str], None] = print,
+            trained: TrainedTable | None = None) -> dict[str, Any]:
     """Run both policies for every seed with ``run_one(policy, seed, run_dir)`` and write
-    the comparison to ``out``."""
+    the comparison to ``out`` (``trained``: the Q-table the Q-learning runs use)."""
     results: list[RunResult] = []
     total = len(seeds) * len(POLICIES)
     for i, seed in enumerate(seeds):
@@ -201,4 +292,4 @@ def compare(world: Path, seeds: list[int], out: Path,
             progress(f"[{i * len(POLICIES) + j + 1}/{total}] {policy}, seed {seed}")
             metrics = run_one(policy, seed, run_dir)
             results.append(RunResult(policy, seed, metrics, read_cycles(run_dir / "cycles.csv")))
-    return write_outputs(out, results, str(world))
+    return write_outputs(out, results, str(world), trained)
