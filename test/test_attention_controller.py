@@ -197,6 +197,19 @@ def test_places_mapped_before_survive_a_restart() -> None:
     assert [r.outcome for r in records if r.action is M] == ["remapped"]
 
 
+def test_complete_when_nothing_new_for_long_enough_and_nothing_unmapped() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)                                   # the last of three stores was at cycle 12
+    assert d.ctl.cycles_since_new == 0 and not d.ctl.complete(4)
+    d.run(4)
+    assert d.ctl.complete(4) and not d.ctl.complete(5)
+    world.objects["d"] = Obj((0.8, 0.0, 0.05), 0.8, 0.3, 0.1)
+    d.ctl.observe(world.rois(), d.now, world.visible)
+    assert not d.ctl.complete(4)                # an unmapped entry: not complete
+    assert not make_ctl().complete(0)           # nothing seen yet: not complete
+
+
 def test_contradicted_mapped_entry_is_mapped_again() -> None:
     world = FakeWorld(three_objects())
     d = Driver(make_ctl(), world, FakeMemory())

@@ -14,7 +14,7 @@ import pytest
 from conftest import WORLDS
 
 from roger_attention.config import AttentionConfig
-from roger_experiments.core_loop import CoreLoop
+from roger_experiments.core_loop import CoreLoop, run_core
 from roger_sim.world import load_world, object_from_dict
 from roger_sim.worldgen import random_world
 
@@ -84,3 +84,20 @@ def test_object_added_mid_run_is_visited_and_mapped(policy):
         loop.close()
     assert "late" in seen, "the added object never came under the attention window"
     assert mapped, "the added object was never mapped"
+
+
+@pytest.mark.parametrize("policy", ["straightforward", "qlearning"])
+def test_the_robots_completion_rule_ends_the_run_and_every_object_was_visited(policy,
+                                                                                tmp_path):
+    # The rule reads nothing but the robot's own state (no new representation for 40
+    # cycles, no unmapped entry); the ground truth only judges afterwards. On a random
+    # world whose objects never share a region of interest (where two do, the hidden one
+    # is never visited whatever the rule: docs/attention.md).
+    world = random_world(4, 2, seed=31, size_range=(0.10, 0.18))
+    recorder, loop = run_core(world, policy, 2000, seed=0, out=tmp_path,
+                              stop_when_complete=40)
+    metrics = recorder.close(0.0)
+    assert loop.complete and metrics["complete"] and metrics["cycles"] < 2000
+    assert loop.ctl.cycles_since_new >= 40 and loop.ctl.spatial_map.all_mapped()
+    assert metrics["every_object_visited"], sorted(
+        {o.name for o in world.objects} - recorder.scorer.visited)

@@ -208,6 +208,7 @@ class AttentionController:
         # remap from a positive identification.
         self._ever_mapped: dict[int, Position] = {}
         self._gone_places: list[Position] = []
+        self._since_new = 0  # counted cycles since the last new representation was stored
 
     @property
     def state(self) -> State:
@@ -266,6 +267,7 @@ class AttentionController:
             "mapped": [{"position": list(p), "address": int(a)}
                        for p, a in self.spatial_map.mapped_places()],
             "mapped_before": [list(p) for p in self._places_mapped_before()],
+            "cycles_since_new": self._since_new,
         }
 
     def restore_state(self, state: dict[str, Any]) -> None:
@@ -292,6 +294,7 @@ class AttentionController:
             before = [tuple(float(v) for v in p) for p in state.get("mapped_before", [])]
             if any(len(p) != 3 for p, _ in places) or any(len(p) != 3 for p in before):
                 raise ValueError("a mapped place is not an (x, y, z) position")
+            since_new = int(state.get("cycles_since_new", 0))
             self.policy.load_state_dict(state["policy_state"])
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"corrupt attention state ({exc!r})") from None
@@ -301,6 +304,22 @@ class AttentionController:
         self._restored_places = places  # type: ignore[assignment]
         self._gone_places = before  # type: ignore[assignment]
         self._ever_mapped = {}
+        self._since_new = since_new
+
+    @property
+    def cycles_since_new(self) -> int:
+        """Counted cycles since the last new representation (a new object stored in the
+        long-term memory); all cycles so far when none was."""
+        return self._since_new
+
+    def complete(self, stable_cycles: int) -> bool:
+        """The robot's own end of an inspection ("until no more new representations were
+        detected", section 5): no new representation for ``stable_cycles`` cycles and no
+        unmapped entry left in a map that holds something. Nothing here reads the ground
+        truth; whether every object was visited is for the evaluation to judge afterwards.
+        """
+        return (self._since_new >= stable_cycles and len(self.spatial_map) > 0
+                and self.spatial_map.all_mapped())
 
     @property
     def in_cycle(self) -> bool:
@@ -522,6 +541,7 @@ class AttentionController:
     def _count(self, action: Action, outcome: str) -> None:
         c = self.counters
         c.cycles += 1
+        self._since_new = 0 if outcome == "stored" else self._since_new + 1
         if action is Action.ATTENTION_SHIFT:
             c.attention_shifts += 1
         elif action is Action.VISUAL_IMPROVEMENT:

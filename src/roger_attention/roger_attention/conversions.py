@@ -36,7 +36,7 @@ def report_to_msg(report: Report, policy: str) -> PolicyState:
 
 
 def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_size: int,
-                done: bool, stamp: float) -> Metrics:
+                done: bool, stamp: float, complete: bool = False) -> Metrics:
     """The run counters as a Metrics message."""
     c = counters
     return Metrics(header=header(stamp), policy=policy, cycles=c.cycles,
@@ -45,13 +45,14 @@ def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_siz
                    haptic_improvements=c.haptic_improvements,
                    positive_identifications=c.positive_identifications,
                    new_objects=c.new_objects, map_updates=c.map_updates, remaps=c.remaps,
-                   map_entries=map_entries, memory_size=memory_size, done=done)
+                   map_entries=map_entries, memory_size=memory_size, done=done,
+                   complete=complete)
 
 
 def publish_metrics_to_msg(out: PublishMetrics, policy: str) -> Metrics:
     """A session's PublishMetrics as a Metrics message."""
     return metrics_msg(out.counters, policy, out.map_entries, out.memory_size, out.done,
-                       out.stamp)
+                       out.stamp, out.complete)
 
 
 def spatial_map_msg(entries: Iterable[MapEntry], stamp: float,

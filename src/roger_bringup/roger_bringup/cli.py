@@ -26,8 +26,9 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--cycles", type=int, default=None, help="control cycles to run (default 60)")
     g.add_argument("--until-complete", action="store_true",
-                   help="run until every object was visited and no new representation "
-                        "appeared for --stable-cycles cycles")
+                   help="run until the robot itself has stored no new object for "
+                        "--stable-cycles cycles and has no unmapped entry left (at most "
+                        "2000 cycles); whether every object was visited is judged afterwards")
     p.add_argument("--stable-cycles", type=int, default=40,
                    help="with --until-complete: cycles without a new object that end the run")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
@@ -70,6 +71,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from roger_bringup.run import run_graph
     metrics = run_graph(_run_options(args))
     print(json.dumps(metrics, indent=2))
+    if args.until_complete:
+        how = ("the robot's own completion rule" if metrics.get("complete")
+               else "the cycle budget (the robot never judged it complete)")
+        print(f"stopped after {metrics['cycles']} cycles by {how}; every object visited "
+              f"(ground truth, judged afterwards): "
+              f"{'yes' if metrics.get('every_object_visited') else 'no'} "
+              f"({metrics['objects_visited']}/{metrics['objects_in_world']})")
     return 0
 
 

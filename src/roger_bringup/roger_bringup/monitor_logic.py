@@ -145,3 +145,4 @@ class RunMonitor:
         self.recorder.counters = {k: int(getattr(msg, k, 0)) for k in COUNTER_FIELDS}
         if msg.done:
             self.done = True
+            self.recorder.complete = bool(getattr(msg, "complete", False))

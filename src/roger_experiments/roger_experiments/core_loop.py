@@ -67,6 +67,8 @@ class CoreLoop:
                                            learn=self.learn)
         self.ctl = AttentionController(cfg, chosen, rng)
         self.last_frame: StereoFrame | None = None
+        #: True once ``cycles`` stopped by the robot's completion rule.
+        self.complete = False
         self.stage_seconds: dict[str, float] = dict.fromkeys(LOOP_STAGES, 0.0)
         self._look()
 
@@ -117,11 +119,18 @@ class CoreLoop:
         with self._timed("policy"):
             return self.ctl.end_cycle(result, self.sim.sim_time)
 
-    def cycles(self, n: int, max_idle: int = 50) -> Iterator[CycleRecord]:
+    def cycles(self, n: int, max_idle: int = 50,
+               stop_when_complete: int = 0) -> Iterator[CycleRecord]:
         """Run until ``n`` control cycles are counted, yielding each record; idle looks (an
-        empty map) are not yielded, and ``max_idle`` of them end the run early."""
+        empty map) are not yielded, and ``max_idle`` of them end the run early. With
+        ``stop_when_complete`` the run also ends (``complete`` set) once the controller
+        judges the inspection complete (AttentionController.complete), as the attention
+        node does with the parameter of that name."""
         idle = 0
         while self.ctl.counters.cycles < n and idle < max_idle:
+            if stop_when_complete and self.ctl.complete(stop_when_complete):
+                self.complete = True
+                return
             record = self.step()
             if record is None:
                 idle += 1
@@ -154,8 +163,10 @@ def row_from_record(record: CycleRecord, true_object: str | None, sim_time: floa
 
 
 def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
-             out: Path | None = None, **kwargs: Any) -> tuple[RunRecorder | None, CoreLoop]:
-    """Run ``cycles`` control cycles in process; record them to ``out`` if given.
+             out: Path | None = None, stop_when_complete: int = 0,
+             **kwargs: Any) -> tuple[RunRecorder | None, CoreLoop]:
+    """Run ``cycles`` control cycles in process (fewer when ``stop_when_complete`` ends the
+    run by the robot's completion rule); record them to ``out`` if given.
 
     Returns:
         The recorder (None without ``out``) and the loop (for its counters and map).
@@ -166,7 +177,7 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
         recorder = RunRecorder(out, list(world.objects),
                                {"policy": policy, "world": world.source, "seed": seed})
     try:
-        for record in loop.cycles(cycles):
+        for record in loop.cycles(cycles, stop_when_complete=stop_when_complete):
             seen = loop.true_object(record)
             if recorder is not None:
                 true_obj = recorder.scorer.true_object_for(int(record.action),
@@ -176,4 +187,6 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
                 recorder.counters = record.counters.as_dict()
     finally:
         loop.close()
+    if recorder is not None:
+        recorder.complete = loop.complete
     return recorder, loop

@@ -117,7 +117,6 @@ class RunScorer:
     detections: int = 0
     correct_detections: int = 0
     last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
-    cycles_since_new: int = 0
 
     def set_objects(self, objects: list[ObjectSpec]) -> None:
         """The world changed: keep scoring with its current objects (old ones stay known)."""
@@ -147,7 +146,6 @@ class RunScorer:
 
     def add(self, row: CycleRow) -> None:
         """Score one cycle."""
-        self.cycles_since_new += 1
         if row.true_object is not None:
             self.visited.add(row.true_object)
         if row.action != Action.MAP_UPDATE:
@@ -159,7 +157,6 @@ class RunScorer:
                 self.correct_detections += 1
             if row.address >= 0:
                 self.address_category.setdefault(row.address, cat)
-            self.cycles_since_new = 0
         elif row.outcome in ("mapped", "remapped"):
             stored = self.address_category.get(row.address, None)
             correct = int(cat is not None and stored == cat)
@@ -210,6 +207,8 @@ class RunRecorder:
                 int(a): (tuple(c) if c is not None else None) for a, c in data.items()}
         self.rows: list[CycleRow] = []
         self.counters: dict[str, int] = {}
+        #: True when the run ended by the robot's completion rule (the attention's own).
+        self.complete = False
         self._fh: IO[str] = open(out_dir / "cycles.csv", "w", newline="")
         self._csv = csv.writer(self._fh)
         self._csv.writerow(CSV_COLUMNS)
@@ -234,7 +233,12 @@ class RunRecorder:
                     "haptic_improvements", "positive_identifications", "new_objects",
                     "map_updates", "remaps"):
             out[key] = int(c.get(key, 0))
-        out.update(self.scorer.results())
+        scores = self.scorer.results()
+        out.update(scores)
+        out["complete"] = bool(self.complete)
+        # Judged on the ground truth after the run, whatever ended it.
+        out["every_object_visited"] = (
+            scores["objects_visited"] >= scores["objects_in_world"] > 0)
         out["wall_seconds"] = round(float(wall_seconds), 3)
         return out
 
