@@ -125,6 +125,8 @@ class CycleRecord:
             entry mapped before, identified and mapped again).
         address: Long-term-memory address concerned; -1 when none.
         counters: Copy of the run counters after the cycle.
+        goal_id: Id of the cycle's physical goal (its convergence report carries it); 0
+            for a map update.
     """
 
     cycle: int
@@ -139,6 +141,7 @@ class CycleRecord:
     outcome: str
     address: int
     counters: RunCounters
+    goal_id: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """The record as JSON-ready data (:meth:`from_dict` reads it back)."""
@@ -159,7 +162,7 @@ class CycleRecord:
             position=None if position is None else as_point(position),
             bbox=None if bbox is None else _bbox(bbox),
             outcome=str(d["outcome"]), address=int(d["address"]),
-            counters=RunCounters(**d["counters"]))
+            counters=RunCounters(**d["counters"]), goal_id=int(d.get("goal_id", 0)))
 
 
 @dataclass
@@ -580,4 +583,5 @@ class AttentionController:
             td_error=td, entry_id=plan.entry_id,
             position=entry.position if entry is not None else None,
             bbox=_bbox(entry.roi.bbox) if entry is not None else None,
-            outcome=outcome, address=address, counters=dataclasses.replace(self.counters))
+            outcome=outcome, address=address, counters=dataclasses.replace(self.counters),
+            goal_id=plan.goal.goal_id if plan.goal is not None else 0)

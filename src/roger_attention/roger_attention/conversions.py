@@ -27,7 +27,8 @@ def record_to_msg(record: CycleRecord, policy: str, stamp: float,
         entry_id=int(record.entry_id),
         position=point(record.position if record.position is not None else (math.nan,) * 3),
         x0=int(x0), y0=int(y0), x1=int(x1), y1=int(y1), outcome=record.outcome,
-        address=int(record.address), frame_stamp=seconds_to_time(frame_stamp))
+        address=int(record.address), frame_stamp=seconds_to_time(frame_stamp),
+        goal_id=int(record.goal_id))
 
 
 def report_to_msg(report: Report, policy: str) -> PolicyState:

@@ -1,7 +1,8 @@
 """The orchestrator's own node: watches the run and scores it against the ground truth.
 
-It subscribes to what the attention node reports (policy state, metrics) and to the
-simulator's ground truth (labels per frame, the world's objects) and hands every message
+It subscribes to what the attention node reports (policy state, metrics), to the
+simulator's convergence events and to its ground truth (labels per frame, the world's
+objects) and hands every message
 to a RunMonitor (the same logic ``roger replay`` uses). It publishes nothing and never
 influences the run.
 """
@@ -16,7 +17,13 @@ from rclpy.node import Node
 from roger_bringup.monitor_logic import RunMonitor
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE
 from roger_experiments.evaluation import RunRecorder
-from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
+from roger_interfaces.msg import (
+    ConvergenceEvent,
+    GroundTruth,
+    GroundTruthLabels,
+    Metrics,
+    PolicyState,
+)
 
 #: The node names a complete graph has.
 GRAPH_NODES: tuple[str, ...] = ("roger_sim", "roger_perception", "roger_memory",
@@ -30,13 +37,17 @@ class MonitorNode(Node):
         super().__init__("roger_monitor", **kwargs)
         self.monitor = RunMonitor(recorder)
         self.recorder = recorder
-        self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
-                                 RELIABLE)
         self.create_subscription(Metrics, "/roger/metrics", self.monitor.on_metrics, RELIABLE)
         self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
                                  self.monitor.on_labels, IMAGES)
         self.create_subscription(GroundTruth, "/roger/ground_truth", self.monitor.on_truth,
                                  LATCHED)
+        self.create_subscription(ConvergenceEvent, "/roger/convergence",
+                                 self.monitor.on_convergence, RELIABLE)
+        # Last: the attention node starts once it sees this subscription, and by then the
+        # others are announced too (the first goal's convergence event must not be missed).
+        self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
+                                 RELIABLE)
         # Records policy states whose frame's labels are overdue (wall clock: sim time
         # stands still while the graph waits).
         self.create_timer(0.1, self.monitor.flush, clock=Clock(clock_type=ClockType.STEADY_TIME))

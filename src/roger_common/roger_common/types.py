@@ -98,19 +98,31 @@ class HapticReading:
 
 @dataclass(frozen=True)
 class ControllerReport:
-    """Status of the five controllers after a goal, plus how long they took."""
+    """Status of the five controllers after a goal, plus how long they took.
+
+    Attributes:
+        goal_id: The goal.
+        states: Status of every controller (a FAILED one stays FAILED until it gets a new
+            reference, as Roger's controllers reported it).
+        sim_time: Simulated time at the end of the goal.
+        physics_steps: Physics steps the goal took.
+        driven: The controllers the goal drove; empty: all of them.
+    """
 
     goal_id: int
     states: dict[str, ControllerState]
     sim_time: float
     physics_steps: int
+    driven: tuple[str, ...] = ()
 
     @property
     def converged(self) -> bool:
-        """True when no controller failed and none is still transient."""
+        """True when none of the controllers the goal drove failed or is still transient
+        (an arm that failed an earlier goal does not fail this one)."""
+        names = self.driven or tuple(self.states)
         return all(
-            s in (ControllerState.CONVERGED, ControllerState.NO_REFERENCE)
-            for s in self.states.values()
+            self.states[n] in (ControllerState.CONVERGED, ControllerState.NO_REFERENCE)
+            for n in names
         )
 
 

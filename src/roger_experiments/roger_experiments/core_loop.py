@@ -20,7 +20,7 @@ import numpy as np
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
 from roger_attention.policies import Policy, make_policy
-from roger_common.types import Action, MatchResult, StereoFrame, WorldSpec
+from roger_common.types import Action, ControllerReport, MatchResult, StereoFrame, WorldSpec
 from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
@@ -67,6 +67,8 @@ class CoreLoop:
                                            learn=self.learn)
         self.ctl = AttentionController(cfg, chosen, rng)
         self.last_frame: StereoFrame | None = None
+        #: The convergence report of the last goal executed.
+        self.last_report: ControllerReport | None = None
         #: True once ``cycles`` stopped by the robot's completion rule.
         self.complete = False
         self.stage_seconds: dict[str, float] = dict.fromkeys(LOOP_STAGES, 0.0)
@@ -109,7 +111,7 @@ class CoreLoop:
         request = plan.memory_request
         if plan.goal is not None:
             with self._timed("sim"):
-                _, frame = self.sim.run_goal(plan.goal)
+                self.last_report, frame = self.sim.run_goal(plan.goal)
             self._perceive(frame)
             with self._timed("policy"):
                 request = self.ctl.match_request()
@@ -146,6 +148,14 @@ class CoreLoop:
             return None
         return object_under_window(frame.left_labels, frame.label_names, record.bbox)
 
+    def converged(self, record: CycleRecord) -> bool | None:
+        """Whether the servo goal of a physical cycle converged (None for a map update); a
+        haptic improvement on an object beyond reach fails."""
+        report = self.last_report
+        if record.goal_id == 0 or report is None or report.goal_id != record.goal_id:
+            return None
+        return report.converged
+
     def close(self) -> None:
         """Release the simulator; a learning Q-table with a file is saved there."""
         if self.learn and self.qtable_path is not None and self.ctl.policy.learns:
@@ -153,13 +163,14 @@ class CoreLoop:
         self.sim.close()
 
 
-def row_from_record(record: CycleRecord, true_object: str | None, sim_time: float) -> CycleRow:
+def row_from_record(record: CycleRecord, true_object: str | None, sim_time: float,
+                    converged: bool | None = None) -> CycleRow:
     """A CycleRecord as an evaluation row."""
     return CycleRow(cycle=record.cycle, state=record.state_before, action=int(record.action),
                     reward=record.reward, td_error=record.td_error, roi=record.entry_id,
                     true_object=true_object, outcome=record.outcome,
                     state_after=record.state_after, address=record.address,
-                    position=record.position, sim_time=sim_time)
+                    position=record.position, sim_time=sim_time, converged=converged)
 
 
 def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
@@ -183,7 +194,8 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
                 true_obj = recorder.scorer.true_object_for(int(record.action),
                                                            record.entry_id, seen,
                                                            record.outcome)
-                recorder.add(row_from_record(record, true_obj, loop.sim.sim_time))
+                recorder.add(row_from_record(record, true_obj, loop.sim.sim_time,
+                                             loop.converged(record)))
                 recorder.counters = record.counters.as_dict()
     finally:
         loop.close()

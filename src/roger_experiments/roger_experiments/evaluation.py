@@ -11,7 +11,9 @@ Scoring rules (issue 7):
 - novelty_precision: share of new-object detections made while no object of that category
   was yet in memory;
 - objects_visited: world objects that filled the attention window at least once
-  (``object_under_window``); a "lost" cycle shows no object and visits nothing.
+  (``object_under_window``); a "lost" cycle shows no object and visits nothing;
+- failed_goals: physical actions whose servo goal failed (``converged`` 0 in cycles.csv),
+  e.g. a haptic improvement on an object beyond the arms' reach.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from roger_common.types import Action, ObjectSpec
 #: cycles.csv columns; the first eight are a contract (issue 7), later ones are extensions.
 CSV_COLUMNS: tuple[str, ...] = (
     "cycle", "state", "action", "reward", "td_error", "roi", "true_object", "outcome",
-    "state_after", "address", "x", "y", "z", "sim_time",
+    "state_after", "address", "x", "y", "z", "sim_time", "converged",
 )
 #: Share of the attention window's area an object's extent must exceed for the window to
 #: show that object (a visit). Measured on three worlds: windows holding one object reach
@@ -62,6 +64,7 @@ class CycleRow:
     address: int = -1
     position: tuple[float, float, float] | None = None
     sim_time: float = 0.0
+    converged: bool | None = None
 
     def as_csv(self) -> list[str]:
         """The row's cells in CSV_COLUMNS order (empty cells for unknowns)."""
@@ -71,7 +74,8 @@ class CycleRow:
         return [str(self.cycle), self.state, ACTION_NAMES.get(self.action, str(self.action)),
                 f"{self.reward:.6g}", td, str(self.roi), self.true_object or "", self.outcome,
                 self.state_after, str(self.address),
-                *("" if math.isnan(v) else f"{v:.4f}" for v in pos), f"{self.sim_time:.4f}"]
+                *("" if math.isnan(v) else f"{v:.4f}" for v in pos), f"{self.sim_time:.4f}",
+                "" if self.converged is None else str(int(self.converged))]
 
 
 def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
@@ -112,6 +116,7 @@ class RunScorer:
     address_category: dict[int, Any] = field(default_factory=dict)
     identifications: int = 0
     correct_identifications: int = 0
+    failed_goals: int = 0
     remaps: int = 0
     correct_remaps: int = 0
     detections: int = 0
@@ -146,6 +151,8 @@ class RunScorer:
 
     def add(self, row: CycleRow) -> None:
         """Score one cycle."""
+        if row.converged is False:
+            self.failed_goals += 1
         if row.true_object is not None:
             self.visited.add(row.true_object)
         if row.action != Action.MAP_UPDATE:
@@ -178,6 +185,7 @@ class RunScorer:
                                               self.identifications),
             "novelty_precision": share(self.correct_detections, self.detections),
             "remap_precision": share(self.correct_remaps, self.remaps),
+            "failed_goals": self.failed_goals,
         }
 
 
