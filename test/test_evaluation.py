@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from roger_common.types import Action, ObjectSpec
-from roger_experiments.compare import RunResult, check_claims, sign_test_p, table2
+from roger_experiments.compare import (
+    RunResult,
+    check_claims,
+    check_completion,
+    report_markdown,
+    sign_test_p,
+    table2,
+)
 from roger_experiments.evaluation import (
     CycleRow,
     RunRecorder,
@@ -135,3 +142,28 @@ def test_sign_test_and_claims():
     t = table2(results)
     assert t["qlearning"]["attention_shifts"]["mean"] == pytest.approx(14.0)
     assert t["straightforward"]["attention_shifts"]["sd"] == 0.0
+
+
+def test_the_sixth_claim_counts_runs_that_visited_everything_after_the_robots_rule():
+    def run(policy, seed, visited, complete=True):
+        return RunResult(policy, seed, {"cycles": 100 + seed, "complete": complete,
+                                        "objects_visited": visited, "objects_in_world": 4,
+                                        "every_object_visited": visited == 4}, [])
+    all_seen = [run(p, s, 4) for p in ("qlearning", "straightforward") for s in (0, 1)]
+    c = check_completion(all_seen)
+    assert (c["verdict"], c["every_object_visited"], c["runs"]) == ("holds", 4, 4)
+    c = check_completion(all_seen[:3] + [run("straightforward", 1, 3)])
+    assert c["verdict"] == "holds in some runs"
+    assert c["per_policy"]["straightforward"]["objects_visited"] == [4, 3]
+    none = check_completion([run("qlearning", 0, 3, complete=False)])
+    assert none["verdict"] == "does not hold" and none["complete"] == 0
+    base = {"attention_shifts": 1, "improvements": 1, "positive_identifications": 1,
+            "new_objects": 1, "remaps": 0, "map_updates": 2, "objects_visited": 4,
+            "identification_precision": 1.0, "novelty_precision": 1.0,
+            "remap_precision": None, "wall_seconds": 1.0, "cycles": 4}
+    results = [RunResult(p, 0, base, []) for p in ("qlearning", "straightforward")]
+    report = report_markdown(table2(results), check_claims(results), "w.yaml", "", c)
+    section = report.split("## The paper's claims")[1]
+    claims = [ln for ln in section.splitlines() if ln.startswith("| Q-learning") or
+              ln.startswith("| Every object")]
+    assert len(claims) == 6 and claims[-1].startswith("| Every object is visited")

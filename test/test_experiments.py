@@ -19,7 +19,7 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
     proc = subprocess.run(
         [sys.executable, "-m", "roger_bringup.cli", "compare", "--world",
          str(WORLDS / "table1.yaml"), "--cycles", "6", "--seeds", "1", "--out", str(out),
-         "--train-worlds", "1", "--train-seeds", "1", "--quiet"],
+         "--train-worlds", "1", "--train-seeds", "1", "--stable-cycles", "10", "--quiet"],
         capture_output=True, text=True, timeout=400,
         env={**__import__("os").environ, "ROS_DOMAIN_ID": str(ros_domain)})
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -38,6 +38,12 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
     # The Q-learning runs used the table trained first, on a world other than this one.
     assert "trained now by `roger train`" in report and "not among them" in report
     assert (out / "train" / "td_errors.png").stat().st_size > 0
+    # The sixth line: runs until the robot's own rule, judged on ground truth afterwards.
+    assert "Every object is visited (ground truth, after the robot's own completion)" in report
+    assert data["completion"]["runs"] == 2
+    for policy in ("qlearning", "straightforward"):
+        m = json.loads((out / "complete" / f"{policy}_seed0" / "metrics.json").read_text())
+        assert m["complete"] is True and m["every_object_visited"] in (True, False)
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:

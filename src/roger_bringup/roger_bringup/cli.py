@@ -17,6 +17,8 @@ if TYPE_CHECKING:
 DEFAULT_WORLD = Path("worlds/table1.yaml")
 #: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
 DEMO_WORLD = Path("worlds/inspection.yaml")
+#: Most cycles a run until the robot's own completion may take.
+COMPLETE_MAX = 2000
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -170,13 +172,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if trained.world_seen:
         print(f"roger compare: warning: {args.world} is one of the worlds {qtable} was "
               "trained on", file=sys.stderr)
+    stable = args.stable_cycles
     if args.in_process:
         from roger_experiments.core_loop import run_core
 
-        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
             import time
             t0 = time.monotonic()
-            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir,
+            recorder, _ = run_core(world, policy, COMPLETE_MAX if complete else args.cycles,
+                                   seed=seed, out=run_dir,
+                                   stop_when_complete=stable if complete else 0,
                                    qtable_path=qtable if policy == "qlearning" else None,
                                    learn=False)
             assert recorder is not None
@@ -184,17 +189,30 @@ def cmd_compare(args: argparse.Namespace) -> int:
     else:
         from roger_bringup.run import RunOptions, run_graph
 
-        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
             return run_graph(RunOptions(
-                world=args.world, out=run_dir, policy=policy, cycles=args.cycles, seed=seed,
+                world=args.world, out=run_dir, policy=policy,
+                cycles=None if complete else args.cycles, until_complete=complete,
+                stable_cycles=stable, max_cycles=COMPLETE_MAX, seed=seed,
                 qtable=qtable if policy == "qlearning" else None, learn=False,
                 progress=not args.quiet))
-    result = compare(args.world, seeds, args.out, run_one, trained=trained)
+
+    def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+        return run(policy, seed, run_dir, False)
+
+    def run_complete(policy: str, seed: int, run_dir: Path) -> dict:
+        return run(policy, seed, run_dir, True)
+    result = compare(args.world, seeds, args.out, run_one, trained=trained,
+                     run_complete=run_complete if stable > 0 else None)
     print()
     print((args.out / "table2.md").read_text())
     print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
     for c in result["claims"]:
         print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
+    c = result["completion"]
+    if c is not None:
+        print(f"  {c['verdict']:>26}: {c['claim']} ({c['every_object_visited']}/{c['runs']} "
+              f"runs; the robot's rule ended {c['complete']}/{c['runs']})")
     print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
           f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
     return 0
@@ -247,6 +265,11 @@ def main(argv: list[str] | None = None) -> None:
                            help="without --qtable: random training worlds")
         p_cmp.add_argument("--train-seeds", type=int, default=2,
                            help="without --qtable: training seeds per world")
+        p_cmp.add_argument("--stable-cycles", type=int, default=40,
+                           help="also run each policy and seed until the robot's own "
+                                "completion rule (no new object for this many cycles, no "
+                                "unmapped entry; at most 2000 cycles) for the report's "
+                                "'every object visited'; 0 skips those runs")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
