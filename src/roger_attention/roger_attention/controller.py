@@ -294,9 +294,9 @@ class AttentionController:
             looks = int(state["looks"])
             places = [(tuple(float(v) for v in p["position"]), int(p["address"]))
                       for p in state["mapped"]]
-            before = [tuple(float(v) for v in p) for p in state.get("mapped_before", [])]
-            if any(len(p) != 3 for p, _ in places) or any(len(p) != 3 for p in before):
+            if any(len(p) != 3 for p, _ in places):
                 raise ValueError("a mapped place is not an (x, y, z) position")
+            before = [as_point(p) for p in state.get("mapped_before", [])]
             since_new = int(state.get("cycles_since_new", 0))
             self.policy.load_state_dict(state["policy_state"])
         except (KeyError, TypeError, AttributeError) as exc:
@@ -305,7 +305,7 @@ class AttentionController:
         self._next_goal_id, self._next_request_id = goal_id + 1, request_id + 1
         self._looks = looks
         self._restored_places = places  # type: ignore[assignment]
-        self._gone_places = before  # type: ignore[assignment]
+        self._gone_places = before
         self._ever_mapped = {}
         self._since_new = since_new
 

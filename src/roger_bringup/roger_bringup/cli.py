@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> None:
             ("compare", "both policies on the same world and seeds: Table 2, Figures 4-6",
              DEFAULT_WORLD, 204, 3, Path("runs/compare")),
             ("demo", "the main job of make demo: roger compare on the default world",
-             DEMO_WORLD, 204, 3, Path("runs/demo"))):
+             DEMO_WORLD, 204, 5, Path("runs/demo"))):
         p_cmp = sub.add_parser(name, help=help_text)
         p_cmp.add_argument("--world", type=Path, default=world, help="world file (YAML)")
         p_cmp.add_argument("--cycles", type=int, default=cycles, help="control cycles per run")
