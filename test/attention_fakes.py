@@ -87,4 +87,4 @@ def three_objects() -> dict[str, Obj]:
 
 def check_table2(c: RunCounters) -> None:
     assert c.attention_shifts + c.improvements + c.map_updates == c.cycles
-    assert c.map_updates == c.positive_identifications + c.new_objects
+    assert c.map_updates == c.positive_identifications + c.new_objects + c.remaps

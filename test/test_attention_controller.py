@@ -11,6 +11,7 @@ from attention_fakes import FakeMemory, FakeWorld, Obj, check_table2, three_obje
 
 from roger_attention.config import AttentionConfig, SpatialMapConfig
 from roger_attention.controller import OUTCOMES, AttentionController, CyclePlan, CycleRecord
+from roger_attention.fsm import State
 from roger_attention.fsm_env import FsmEnv, train_qtable
 from roger_attention.policies import QLearningPolicy, make_policy
 from roger_attention.qlearning import QTable
@@ -148,6 +149,68 @@ def test_vanished_and_moved_objects_the_map_follows() -> None:
     assert c.positive_identifications == 1 and c.new_objects == 3   # c re-identified
 
 
+def test_an_entry_that_drifted_is_remapped_not_identified_again() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)
+    # b drifts 13 cm: still the same entry (association radius 0.15 m), but beyond the
+    # moved threshold (0.12 m), so its mapping is cleared and it is mapped again.
+    world.objects["b"] = Obj((0.63, 0.0, 0.05), 0.4, 0.5, 0.9)
+    records = d.run(8)
+    again = [r for r in records if r.action is M]
+    assert [r.outcome for r in again] == ["remapped"]
+    c = d.ctl.counters
+    assert (c.positive_identifications, c.remaps, c.new_objects) == (0, 1, 3)
+
+
+def test_a_place_lost_and_seen_again_is_remapped() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)
+    a = world.objects.pop("a")
+    d.run(3)                       # a's entry vanishes (vanish_frames 2)
+    assert len(d.ctl.spatial_map) == 2
+    world.objects["a"] = a         # back at its place: a new entry there
+    records = d.run(8)
+    assert [r.outcome for r in records if r.action is M] == ["remapped"]
+    # A second object somewhere never mapped is a positive identification.
+    world.objects["a2"] = Obj((0.9, 0.0, 0.05), a.value, a.weight, 0.95)
+    records = d.run(6)
+    assert [r.outcome for r in records if r.action is M] == ["mapped"]
+    c = d.ctl.counters
+    assert (c.positive_identifications, c.remaps, c.new_objects) == (1, 1, 3)
+
+
+def test_places_mapped_before_survive_a_restart() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)
+    a = world.objects.pop("a")
+    d.run(3)
+    saved = d.ctl.export_state()
+    ctl = make_ctl()
+    ctl.restore_state(saved)
+    world.objects["a"] = a
+    d2 = Driver(ctl, world, d.memory)
+    while ctl.next_look() is not None:
+        ctl.observe(world.rois(), d2.now, world.visible)
+    records = d2.run(8)
+    assert [r.outcome for r in records if r.action is M] == ["remapped"]
+
+
+def test_complete_when_nothing_new_for_long_enough_and_nothing_unmapped() -> None:
+    world = FakeWorld(three_objects())
+    d = Driver(make_ctl(), world, FakeMemory())
+    d.run(12)                                   # the last of three stores was at cycle 12
+    assert d.ctl.cycles_since_new == 0 and not d.ctl.complete(4)
+    d.run(4)
+    assert d.ctl.complete(4) and not d.ctl.complete(5)
+    world.objects["d"] = Obj((0.8, 0.0, 0.05), 0.8, 0.3, 0.1)
+    d.ctl.observe(world.rois(), d.now, world.visible)
+    assert not d.ctl.complete(4)                # an unmapped entry: not complete
+    assert not make_ctl().complete(0)           # nothing seen yet: not complete
+
+
 def test_contradicted_mapped_entry_is_mapped_again() -> None:
     world = FakeWorld(three_objects())
     d = Driver(make_ctl(), world, FakeMemory())
@@ -221,6 +284,15 @@ def test_qlearning_policy_switch_learns_and_maps_everything() -> None:
     assert d.ctl.counters.new_objects == 3
     rewarded = [r for r in records if r.reward > 0]
     assert rewarded and all(r.action is M for r in rewarded)
+
+
+def test_no_transition_is_terminal_so_the_shift_is_valued() -> None:
+    d = Driver(make_ctl("qlearning", seed=3), FakeWorld(three_objects()), FakeMemory())
+    d.run(80)
+    table = d.ctl.policy.table
+    # A shift is worth gamma times the best value of the state it lands in, and a map
+    # update what follows it: both learnt like any other action (docs/attention.md).
+    assert table.value(State.from_bits("101"), S) > 0.0, table.q
 
 
 def test_learned_greedy_table_runs_without_learning() -> None:

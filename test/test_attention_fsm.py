@@ -17,7 +17,6 @@ from roger_attention.fsm import (
     IllegalActionError,
     State,
     allowed_actions,
-    is_terminal,
     reward,
     transition,
 )
@@ -140,11 +139,6 @@ def test_every_legal_transition_rewarded_only_on_the_two_map_updates() -> None:
     assert rewarded == {("100", M, "101"), ("010", M, "011")}
 
 
-@pytest.mark.parametrize(("action", "terminal"), [(S, True), (V, False), (H, False), (M, True)])
-def test_terminal_actions(action: Action, terminal: bool) -> None:
-    assert is_terminal(action) is terminal
-
-
 @pytest.mark.parametrize(
     ("bits", "visual_left", "haptic_left", "expected"),
     [
@@ -176,26 +170,30 @@ def test_env_api_and_final_trial_always_decides() -> None:
     assert obs.bits in ("010", "100")
     assert obs.bits == ("010" if info["known"] else "100")
     obs, r, terminated, truncated, info = env.step(M)
-    assert terminated and not truncated and r > 0 and obs.mapping == 1
-    with pytest.raises(RuntimeError):
-        env.step(S)
+    assert not terminated and not truncated and r > 0 and obs.mapping == 1
+    assert info["allowed"] == (S,)
+    obs, r, terminated, truncated, info = env.step(S)   # the task goes on: the next ROI
+    assert not terminated and obs.bits == "000" and set(info["allowed"]) == {S, V, H}
 
 
-def test_env_rejects_illegal_actions_and_shift_ends_episode() -> None:
+def test_env_rejects_illegal_actions_and_a_shift_lands_on_the_next_roi() -> None:
     env = FsmEnv(FsmEnvConfig(p_mapped=0.0, p_identify_shift=0.0))
     env.reset(seed=0)
     with pytest.raises(IllegalActionError):
         env.step(M)
-    _, r, terminated, _, info = env.step(S)
-    assert terminated and r == 0.0 and info["abandoned"]
+    obs, r, terminated, _, info = env.step(S)
+    assert not terminated and r == 0.0 and info["abandoned"]
+    assert obs.bits == "000" and set(info["allowed"]) == {S, V, H}   # trials refilled
 
 
-def test_env_truncates() -> None:
+def test_env_never_terminates_and_truncates() -> None:
     env = FsmEnv(FsmEnvConfig(max_episode_steps=1, visual_trials=5, p_identify_shift=0.0,
                               p_identify_visual=0.0))
     env.reset(seed=0)
     _, _, terminated, truncated, _ = env.step(V)
     assert truncated and not terminated
+    with pytest.raises(RuntimeError):
+        env.step(S)
 
 
 def test_env_same_seed_same_trajectory() -> None:

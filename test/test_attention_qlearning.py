@@ -104,14 +104,19 @@ def _train(seed: int, episodes: int = 300,
     env = FsmEnv(env_cfg)
     table = QTable()
     log = train_qtable(env, table, episodes, np.random.default_rng(seed), seed=seed)
-    return table, log.episode_mean_abs_td
+    return table, log.td_errors
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_td_error_falls(seed: int) -> None:
-    _, td = _train(seed)
-    first, last = float(np.mean(td[:50])), float(np.mean(td[-50:]))
-    assert last < 0.5 * first, (first, last)
+def test_td_error_falls_to_the_noise_of_the_next_rois_match(seed: int) -> None:
+    table, td = _train(seed)
+    first, last = float(np.mean(np.abs(td[:100]))), float(np.mean(np.abs(td[-2000:])))
+    assert last < 0.8 * first, (first, last)
+    # The rewarded map updates converge to r + gamma Q(s', shift) (nothing is terminal).
+    for bits, r in (("010", 2.0), ("100", 1.5)):
+        s, s2 = State.from_bits(bits), State.from_bits(bits[:2] + "1")
+        target = r + 0.1 * table.value(s2, S)
+        assert table.value(s, M) == pytest.approx(target, abs=0.02), (bits, table.q)
 
 
 def test_training_is_reproducible() -> None:
@@ -123,29 +128,32 @@ def test_training_is_reproducible() -> None:
 
 
 @pytest.mark.parametrize("p_mapped", [0.0, 0.25])
-def test_greedy_policy_ends_every_unmapped_rois_episode_with_a_map_update(
+def test_greedy_policy_settles_every_unmapped_roi_where_improving_pays(
         p_mapped: float) -> None:
+    # In this fixture an improvement identifies a known object more often (0.5, 0.7) than
+    # the next ROI's match after a shift does (0.3): the learnt values must say so.
     cfg = FsmEnvConfig(p_mapped=p_mapped)
     table, _ = _train(7, 300, cfg)
+    s000 = State.from_bits("000")
+    assert max(table.value(s000, V), table.value(s000, H)) > table.value(s000, S) > 0.0
     policy = QLearningPolicy(table, np.random.default_rng(1), learn=False)
-    env = FsmEnv(cfg)
-    unmapped_episodes = 0
-    for episode in range(200):
-        state, info = env.reset(seed=11 if episode == 0 else None)
-        unmapped = not info["mapped"]
-        actions = []
-        done = truncated = False
-        while not done:
-            a = policy.select_action(state, info["allowed"])
+    env = FsmEnv(FsmEnvConfig(p_mapped=p_mapped, max_episode_steps=2000))
+    state, info = env.reset(seed=11)
+    landed_unmapped, stays, actions = not info["mapped"], 0, []
+    for _ in range(2000):
+        a = policy.select_action(state, info["allowed"])
+        if a is S:
+            if landed_unmapped:
+                stays += 1
+                assert actions and actions[-1] is M, actions   # settled before leaving
+            actions = []
+        else:
             actions.append(a)
-            state, _, done, truncated, info = env.step(a)
-            done = done or truncated
-        assert not truncated
-        if unmapped:
-            unmapped_episodes += 1
-            assert actions[-1] is M, actions
-            assert S not in actions
-    assert unmapped_episodes > 100
+        state, _, terminated, _, info = env.step(a)
+        assert not terminated
+        if a is S:
+            landed_unmapped = not info["mapped"]
+    assert stays > 100
 
 
 def test_make_policy_switch_and_modes(tmp_path: Path) -> None:

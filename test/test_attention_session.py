@@ -119,6 +119,19 @@ def test_session_runs_the_controllers_cycles_and_stops_at_max_cycles() -> None:
         assert (r.frame_stamp == 0.0) == (r.record.action is Action.MAP_UPDATE)
 
 
+def test_session_stops_by_the_robots_completion_rule() -> None:
+    session = make_session(policy="straightforward", max_cycles=500, stop_when_complete=6)
+    t = Transport(session, FakeWorld(three_objects()), FakeMemory())
+    t.run()
+    # Three objects stored and mapped by cycle 12 (S V H M each); six more cycles without a
+    # new representation, nothing unmapped: done, by the rule, not by the budget.
+    assert session.done and session.complete
+    assert [r.record.cycle for r in t.reports] == list(range(1, 19))
+    assert t.metrics[-1].done and t.metrics[-1].complete
+    assert not any(m.complete for m in t.metrics[:-1])
+    assert session.ctl.cycles_since_new == 6
+
+
 def test_unanswered_goals_are_resent_and_stale_answers_ignored() -> None:
     clock = Clock()
     session = make_session(clock=clock, retry_after_s=3.0)

@@ -43,7 +43,6 @@ BAD_WORLDS = {
     "overlap": ("objects:\n" + OK + OK.replace("name: a", "name: b")
                 .replace("[0.8, 0.0]", "[0.85, 0.05]"), "(b).position: overlaps 'a'"),
     "out of view": ("objects:\n" + OK.replace("[0.8, 0.0]", "[0.1, 0.0]"), "out of view"),
-    "out of reach": ("objects:\n" + OK.replace("[0.8, 0.0]", "[1.6, 0.0]"), "out of reach"),
     "empty world": ("objects: []\n", "the world is empty"),
     "no objects": ("name: nothing\n", "objects: missing required field"),
     "not a mapping": ("- just\n- a list\n", "must be a YAML mapping"),
@@ -66,7 +65,7 @@ def test_missing_world_file_gives_one_line(tmp_path):
         load_world(tmp_path / "nowhere.yaml")
 
 
-@pytest.mark.parametrize("case", ["overlap", "out of reach"])
+@pytest.mark.parametrize("case", ["overlap", "out of view"])
 def test_sim_node_refuses_a_bad_world_with_one_line(no_leaks, tmp_path, ros_domain, case):
     path = tmp_path / "bad.yaml"
     path.write_text(BAD_WORLDS[case][0])

@@ -20,7 +20,7 @@ CONTRACT_COLUMNS = ["cycle", "state", "action", "reward", "td_error", "roi", "tr
 METRIC_KEYS = {"policy", "world", "seed", "cycles", "attention_shifts", "improvements",
                "positive_identifications", "new_objects", "map_updates", "objects_in_world",
                "objects_visited", "identification_precision", "novelty_precision",
-               "wall_seconds"}
+               "wall_seconds", "remaps", "remap_precision"}
 
 
 def descendants(pid: int) -> set[int]:
@@ -61,7 +61,7 @@ def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_dom
     assert metrics["cycles"] == 8 and metrics["policy"] == policy
     assert metrics["attention_shifts"] + metrics["improvements"] + metrics["map_updates"] == 8
     assert metrics["map_updates"] == (metrics["positive_identifications"]
-                                      + metrics["new_objects"])
+                                      + metrics["new_objects"] + metrics["remaps"])
     assert metrics["objects_in_world"] == 4 and metrics["objects_visited"] >= 1
     with open(out / "cycles.csv") as fh:
         rows = list(csv.reader(fh))
@@ -125,3 +125,45 @@ def test_bad_world_file_gives_one_line_and_exit_2(tmp_path, content, field):
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "pybullet build" not in ln]
     assert len(lines) == 1, proc.stderr
     assert "bad.yaml" in lines[0] and field in lines[0] and "Traceback" not in proc.stderr
+
+
+def test_an_object_beyond_reach_is_handled_end_to_end(no_leaks, tmp_path, ros_domain):
+    """worlds/beyond_reach.yaml: two objects in view beyond the arms' reach. A haptic
+    improvement on them fails as a servo goal (controller status, convergence event,
+    cycles.csv), and they are still identified or stored from what the eyes measured."""
+    from roger_bringup.record import read_messages
+    from roger_common.types import ControllerState
+    from roger_sim.world import in_reach, load_world
+
+    world = load_world(WORLDS / "beyond_reach.yaml")
+    far = {o.name for o in world.objects if not in_reach(*o.position)}
+    assert far == {"obj05", "obj06"}
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [*ROGER, "run", "--world", str(WORLDS / "beyond_reach.yaml"), "--cycles", "40",
+         "--seed", "0", "--out", str(out), "--quiet", "--record", str(out / "bag"),
+         "--domain-id", str(ros_domain), "--timeout", "300"],
+        capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
+    with open(out / "cycles.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    failed = [r for r in rows if r["action"] == "haptic_improvement" and r["converged"] == "0"]
+    assert failed and all(r["true_object"] in far for r in failed if r["true_object"]), failed
+    entries = {r["roi"] for r in failed}
+    settled = [r for r in rows if r["action"] == "map_update" and r["roi"] in entries]
+    assert settled and {r["outcome"] for r in settled} <= {"stored", "mapped", "remapped"}
+    reached = [r for r in rows if r["action"] == "haptic_improvement"
+               and r["true_object"] not in far and r["true_object"]]
+    assert all(r["converged"] == "1" for r in reached), reached
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["failed_goals"] == len([r for r in rows if r["converged"] == "0"]) >= 1
+    # The simulator reported the failure itself: the arm's status and the goal's event.
+    events = [m for _, m, _ in read_messages(out / "bag", ("/roger/convergence",))]
+    haptic_failed = [e for e in events if e.action == 2 and not e.converged]
+    assert haptic_failed
+    arm_status = {e.goal_id: dict(zip(e.controllers, e.status, strict=True))
+                  for e in haptic_failed}
+    assert all(ControllerState.FAILED in (s["left_arm"], s["right_arm"])
+               for s in arm_status.values())
+    statuses = [m for _, m, _ in read_messages(out / "bag", ("/roger/controller_status",))]
+    assert any(ControllerState.FAILED in m.status for m in statuses)

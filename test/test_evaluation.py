@@ -4,11 +4,25 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from roger_common.types import Action, ObjectSpec
-from roger_experiments.compare import RunResult, check_claims, sign_test_p, table2
-from roger_experiments.evaluation import CycleRow, RunRecorder, RunScorer, counters_from_rows
+from roger_experiments.compare import (
+    RunResult,
+    check_claims,
+    check_completion,
+    report_markdown,
+    sign_test_p,
+    table2,
+)
+from roger_experiments.evaluation import (
+    CycleRow,
+    RunRecorder,
+    RunScorer,
+    counters_from_rows,
+    object_under_window,
+)
 
 S, V, H, M = (int(a) for a in Action)
 
@@ -45,6 +59,41 @@ def test_map_update_takes_the_object_last_seen_for_its_roi():
     assert scorer.true_object_for(S, 5, "b") == "b"
     assert scorer.true_object_for(M, 4, None) == "a"
     assert scorer.true_object_for(M, 9, None) is None
+
+
+def test_a_lost_cycle_shows_no_object_and_visits_nothing():
+    # The forgotten entry's window is of an earlier frame: whatever this frame shows
+    # there, no look happened.
+    scorer = RunScorer({"a": obj("a"), "b": obj("b", weight=0.5)})
+    assert scorer.true_object_for(S, 4, "a", "lost") is None
+    scorer.add(row(1, S, None, "lost", roi=4))
+    assert scorer.results()["objects_visited"] == 0
+    assert scorer.true_object_for(M, 4, None) is None   # nothing remembered for roi 4
+
+
+def labels_with(*boxes: tuple[int, int, int, int, int]) -> np.ndarray:
+    img = np.full((40, 40), -1, np.int32)
+    for idx, x0, y0, x1, y1 in boxes:
+        img[y0:y1, x0:x1] = idx
+    return img
+
+
+def test_a_window_shows_an_object_only_when_the_object_fills_most_of_it():
+    names = ("a", "b")
+    # The object spans the window (a margin of a pixel or two): shown.
+    assert object_under_window(labels_with((0, 10, 10, 20, 20)), names, (9, 9, 21, 21)) == "a"
+    # A triangle covers half of its own box: its extent still fills the window.
+    tri = np.full((40, 40), -1, np.int32)
+    for r in range(10):
+        tri[10 + r, 10:11 + r] = 1
+    assert object_under_window(tri, names, (10, 10, 20, 20)) == "b"
+    # Mostly ground, with an object in a corner: no object, no visit.
+    assert object_under_window(labels_with((0, 10, 10, 14, 14)), names, (10, 10, 30, 30)) \
+        is None
+    # Two objects side by side, each half of the window: neither fills it.
+    assert object_under_window(labels_with((0, 10, 10, 20, 30), (1, 20, 10, 30, 30)), names,
+                               (10, 10, 30, 30)) is None
+    assert object_under_window(labels_with(), names, (0, 0, 10, 10)) is None
 
 
 def test_no_identification_gives_no_precision_not_zero():
@@ -93,3 +142,28 @@ def test_sign_test_and_claims():
     t = table2(results)
     assert t["qlearning"]["attention_shifts"]["mean"] == pytest.approx(14.0)
     assert t["straightforward"]["attention_shifts"]["sd"] == 0.0
+
+
+def test_the_sixth_claim_counts_runs_that_visited_everything_after_the_robots_rule():
+    def run(policy, seed, visited, complete=True):
+        return RunResult(policy, seed, {"cycles": 100 + seed, "complete": complete,
+                                        "objects_visited": visited, "objects_in_world": 4,
+                                        "every_object_visited": visited == 4}, [])
+    all_seen = [run(p, s, 4) for p in ("qlearning", "straightforward") for s in (0, 1)]
+    c = check_completion(all_seen)
+    assert (c["verdict"], c["every_object_visited"], c["runs"]) == ("holds", 4, 4)
+    c = check_completion(all_seen[:3] + [run("straightforward", 1, 3)])
+    assert c["verdict"] == "holds in some runs"
+    assert c["per_policy"]["straightforward"]["objects_visited"] == [4, 3]
+    none = check_completion([run("qlearning", 0, 3, complete=False)])
+    assert none["verdict"] == "does not hold" and none["complete"] == 0
+    base = {"attention_shifts": 1, "improvements": 1, "positive_identifications": 1,
+            "new_objects": 1, "remaps": 0, "map_updates": 2, "objects_visited": 4,
+            "identification_precision": 1.0, "novelty_precision": 1.0,
+            "remap_precision": None, "wall_seconds": 1.0, "cycles": 4}
+    results = [RunResult(p, 0, base, []) for p in ("qlearning", "straightforward")]
+    report = report_markdown(table2(results), check_claims(results), "w.yaml", "", c)
+    section = report.split("## The paper's claims")[1]
+    claims = [ln for ln in section.splitlines() if ln.startswith("| Q-learning") or
+              ln.startswith("| Every object")]
+    assert len(claims) == 6 and claims[-1].startswith("| Every object is visited")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 from conftest import WORLDS
 
@@ -18,7 +19,7 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
     proc = subprocess.run(
         [sys.executable, "-m", "roger_bringup.cli", "compare", "--world",
          str(WORLDS / "table1.yaml"), "--cycles", "6", "--seeds", "1", "--out", str(out),
-         "--quiet"],
+         "--train-worlds", "1", "--train-seeds", "1", "--stable-cycles", "10", "--quiet"],
         capture_output=True, text=True, timeout=400,
         env={**__import__("os").environ, "ROS_DOMAIN_ID": str(ros_domain)})
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -30,8 +31,54 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
         m = json.loads((out / "runs" / f"{policy}_seed0" / "metrics.json").read_text())
         assert m["cycles"] == 6
         assert m["attention_shifts"] + m["improvements"] + m["map_updates"] == 6
-        assert m["map_updates"] == m["positive_identifications"] + m["new_objects"]
-    assert "Q-learning performs more attention shifts" in (out / "report.md").read_text()
+        assert m["map_updates"] == (m["positive_identifications"] + m["new_objects"]
+                                   + m["remaps"])
+    report = (out / "report.md").read_text()
+    assert "Q-learning performs more attention shifts" in report
+    # The Q-learning runs used the table trained first, on a world other than this one.
+    assert "trained now by `roger train`" in report and "not among them" in report
+    assert (out / "train" / "td_errors.png").stat().st_size > 0
+    # The sixth line: runs until the robot's own rule, judged on ground truth afterwards.
+    assert "Every object is visited (ground truth, after the robot's own completion)" in report
+    assert data["completion"]["runs"] == 2
+    for policy in ("qlearning", "straightforward"):
+        m = json.loads((out / "complete" / f"{policy}_seed0" / "metrics.json").read_text())
+        assert m["complete"] is True and m["every_object_visited"] in (True, False)
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "roger_bringup.cli", *args],
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_train_learns_on_the_robot_and_compare_runs_the_table_frozen(tmp_path):
+    train_out = tmp_path / "train"
+    proc = cli("train", "--random-worlds", "1", "--world-seed0", "200", "--seeds", "1",
+               "--cycles", "30", "--out", str(train_out), "--quiet")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((train_out / "train.json").read_text())
+    (world,) = summary["worlds"]
+    assert world["name"] == "random_8x3_200" and summary["updates"] == 30
+    assert summary["made_by"]["random"]["seed0"] == 200
+    lines = (train_out / "td_errors.csv").read_text().splitlines()
+    assert lines[0] == "trial,run,world,seed,td_error,state,action" and len(lines) == 31
+    assert (train_out / "td_errors.png").stat().st_size > 0
+    table = (train_out / "qtable.json").read_bytes()
+
+    def compare(world: Path, out: Path) -> str:
+        proc = cli("compare", "--in-process", "--world", str(world), "--cycles", "8",
+                   "--seeds", "1", "--qtable", str(train_out / "qtable.json"), "--out",
+                   str(out), "--quiet")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return proc.stderr + (out / "report.md").read_text()
+
+    seen = compare(train_out / "worlds" / "random_8x3_200.yaml", tmp_path / "seen")
+    assert "warning" in seen and "one of the training worlds" in seen
+    unseen = compare(WORLDS / "table1.yaml", tmp_path / "unseen")
+    assert "not among them" in unseen and "given with --qtable" in unseen
+    rows = (tmp_path / "unseen" / "runs" / "qlearning_seed0" / "cycles.csv").read_text()
+    assert all(line.split(",")[4] == "" for line in rows.splitlines()[1:])  # no TD: frozen
+    assert (train_out / "qtable.json").read_bytes() == table
 
 
 def test_second_run_with_the_first_runs_memory_stores_nothing_new(tmp_path):
@@ -62,7 +109,7 @@ def test_until_complete_on_an_unseen_world_visits_every_object(no_leaks, tmp_pat
     from roger_sim.world import world_to_dict
     from roger_sim.worldgen import random_world
 
-    world = random_world(3, 2, seed=23, size_range=(0.08, 0.14))
+    world = random_world(4, 2, seed=31, size_range=(0.10, 0.18))
     path = tmp_path / "unseen.yaml"
     path.write_text(yaml.safe_dump(world_to_dict(world), sort_keys=False))
     out = tmp_path / "run"
@@ -74,5 +121,8 @@ def test_until_complete_on_an_unseen_world_visits_every_object(no_leaks, tmp_pat
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((out / "metrics.json").read_text())
     status = json.loads((out / "run_status.json").read_text())
+    # Stopped by the robot's own rule (the attention node), judged on ground truth after.
     assert status["status"] == "complete", status
-    assert metrics["objects_visited"] == metrics["objects_in_world"] == 6
+    assert metrics["complete"] is True and metrics["every_object_visited"] is True
+    assert metrics["objects_visited"] == metrics["objects_in_world"] == 8
+    assert "stopped after" in proc.stdout and "completion rule" in proc.stdout

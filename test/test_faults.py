@@ -115,7 +115,7 @@ def assert_nothing_lost(out: Path, cycles: int) -> None:
     assert metrics["attention_shifts"] + metrics["improvements"] + metrics["map_updates"] \
         == cycles
     assert metrics["map_updates"] == metrics["positive_identifications"] \
-        + metrics["new_objects"]
+        + metrics["new_objects"] + metrics["remaps"]
     # Every stored object is in the memory file, once.
     stored = sum(1 for r in rows if r[7] == "stored")
     assert stored == metrics["new_objects"] >= 1

@@ -65,7 +65,8 @@ def test_random_episodes_follow_the_fsm_and_table2_identities():
                         (("100", "101"), ("010", "011"))
                 c = info["counters"]
                 assert c["attention_shifts"] + c["improvements"] + c["map_updates"] == c["cycles"]
-                assert c["map_updates"] == c["positive_identifications"] + c["new_objects"]
+                assert c["map_updates"] == (c["positive_identifications"] + c["new_objects"]
+                                             + c["remaps"])
                 if truncated:
                     break
             assert truncated
@@ -120,8 +121,7 @@ def test_qtable_trained_against_the_env_learns_the_rewarded_map_updates():
     rewarded = [s for s in ("100", "010")
                 if table.value(State.from_bits(s), Action.MAP_UPDATE) > 0]
     assert rewarded, f"no rewarded map update learned; Q =\n{table.q}"
-    # Only those map updates earn a reward, shifts end the ROI's episode and the table
-    # starts at 0: only they and the improvements leading to them can be positive.
+    # Nothing is terminal: a shift after a rewarded map update is worth what the state it
+    # lands in is worth, so the value reaches the shifts too.
     positive = {(STATES[i].bits, Action(j).name) for i, j in zip(*np.nonzero(table.q > 1e-9))}
-    assert positive <= {("100", "MAP_UPDATE"), ("010", "MAP_UPDATE"),
-                        ("000", "VISUAL_IMPROVEMENT"), ("000", "HAPTIC_IMPROVEMENT")}
+    assert any(action == "ATTENTION_SHIFT" for _, action in positive), table.q

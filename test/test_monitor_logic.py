@@ -99,3 +99,27 @@ def test_map_update_needs_no_labels_but_waits_its_turn(monitor) -> None:
     assert seen(rec) == []
     mon.flush(force=True)
     assert [r.cycle for r in rec.rows] == [1, 2]
+
+
+def event(goal_id: int, converged: bool):
+    from roger_interfaces.msg import ConvergenceEvent
+    return ConvergenceEvent(goal_id=goal_id, action=int(Action.HAPTIC_IMPROVEMENT),
+                            converged=converged)
+
+
+def test_a_state_waits_for_its_goals_convergence_event_too(monitor) -> None:
+    mon, rec, _ = monitor
+    mon.on_labels(labels(1, "cube"))
+    mon.on_labels(labels(2, "cube"))
+    first, second = state(1, 1), state(2, 2)
+    first.goal_id, second.goal_id = 7, 8
+    mon.on_state(first)
+    mon.on_state(second)
+    assert seen(rec) == []                 # labels here, events not yet
+    mon.on_convergence(event(7, False))    # the arm could not reach
+    assert [r.converged for r in rec.rows] == [False]
+    mon.on_convergence(event(1 << 62, True))   # a look's event proves nothing about 8
+    assert len(rec.rows) == 1
+    mon.on_convergence(event(9, True))     # a newer goal's event: 8's never comes
+    assert [r.converged for r in rec.rows] == [False, None]
+    assert rec.scorer.failed_goals == 1

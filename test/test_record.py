@@ -46,7 +46,13 @@ from roger_bringup.recorder_node import McapRecorder
 from roger_bringup.run import RunOptions, run_graph
 from roger_bringup.topics import TOPICS
 from roger_experiments.evaluation import RunRecorder
-from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
+from roger_interfaces.msg import (
+    ConvergenceEvent,
+    GroundTruth,
+    GroundTruthLabels,
+    Metrics,
+    PolicyState,
+)
 from roger_memory.memory_node import MemoryNode
 from roger_perception.perception_node import PerceptionNode
 from roger_sim.sim_node import SimNode
@@ -68,6 +74,8 @@ class Listener(TopicListener):
             self.monitor.on_truth(msg)
         elif isinstance(msg, GroundTruthLabels):
             self.monitor.on_labels(msg)
+        elif isinstance(msg, ConvergenceEvent):
+            self.monitor.on_convergence(msg)
         elif isinstance(msg, PolicyState):
             self.monitor.on_state(msg)
         elif isinstance(msg, Metrics):

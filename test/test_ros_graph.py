@@ -57,7 +57,8 @@ def test_four_nodes_run_cycles_and_every_topic_carries_messages(no_leaks, graph,
     final = listener.metrics[-1]
     assert final.cycles == 12
     assert final.attention_shifts + final.improvements + final.map_updates == final.cycles
-    assert final.map_updates == final.positive_identifications + final.new_objects
+    assert final.map_updates == (final.positive_identifications + final.new_objects
+                                 + final.remaps)
     assert final.attention_shifts >= 1
     if policy == "qlearning":
         assert (tmp / "q.json").exists()

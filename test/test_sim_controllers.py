@@ -128,8 +128,11 @@ def test_unreachable_arm_fails_and_timeout_fails() -> None:
     world = WorldSpec(objects=(ObjectSpec("ball", "sphere", (0.8, 0.1), 0.2, 99, 1.0),))
     with Simulator(world, SimConfig(goal_timeout_s=0.3)) as s:
         far = s.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, (2.0, 0.3, 0.1)))
-        assert far.states["left_arm"] == S.FAILED
+        assert far.states["left_arm"] == S.FAILED and not far.converged
         assert far.physics_steps <= 2
+        # The arm's FAILED stays latched, but it is not this shift's controller.
+        look = s.execute(Goal(3, Action.ATTENTION_SHIFT, (0.8, 0.1, 0.1)))
+        assert look.states["left_arm"] == S.FAILED and look.converged
         # Reachable but the whole routine cannot fit in 0.3 s: the arm times out.
         slow = s.execute(Goal(2, Action.HAPTIC_IMPROVEMENT, (0.8, 0.1, 0.1)))
         assert slow.states["left_arm"] == S.FAILED

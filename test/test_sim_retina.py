@@ -167,8 +167,8 @@ def test_world_change_errors() -> None:
             sim.add_object(ObjectSpec("b", "box", (0.85, 0.25), 0.2, 99, 1.0))
         with pytest.raises(WorldFileError, match="size"):
             sim.add_object(ObjectSpec("c", "box", (0.8, -0.3), -0.2, 99, 1.0))
-        with pytest.raises(WorldFileError, match="reach"):
-            sim.move_object("a", (1.5, 0.0))
+        with pytest.raises(WorldFileError, match="view"):
+            sim.move_object("a", (0.1, 0.0))
         with pytest.raises(KeyError, match="zz"):
             sim.remove_object("zz")
         with pytest.raises(KeyError, match="zz"):

@@ -9,7 +9,15 @@ import pytest
 import yaml
 
 from roger_common.errors import WorldFileError
-from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
+from roger_sim.world import (
+    in_reach,
+    load_world,
+    object_from_dict,
+    parse_world,
+    reach_distance,
+    world_to_dict,
+)
+from roger_sim.worldgen import random_world
 
 WORLDS = Path(__file__).resolve().parents[1] / "worlds"
 
@@ -61,7 +69,7 @@ def test_other_shipped_worlds() -> None:
     assert {"stripes", "checker"} <= {o.texture for o in shapes.objects}
 
 
-@pytest.mark.parametrize("name", ["table1", "two_rows", "shapes"])
+@pytest.mark.parametrize("name", ["table1", "two_rows", "shapes", "beyond_reach"])
 def test_round_trip(name: str) -> None:
     world = load_world(WORLDS / f"{name}.yaml")
     again = parse_world(world_to_dict(world), world.source)
@@ -90,7 +98,6 @@ BAD = [
     ("bad texture", _with(1, texture="dots"), "objects[1] (b).texture", "dots"),
     ("bad position", _with(0, position=[0.7]), "objects[0] (a).position", "2 numbers"),
     ("overlap", _with(1, position=[0.75, 0.35]), "objects[1] (b).position", "overlaps 'a'"),
-    ("out of reach", _with(0, position=[1.6, 0.0]), "objects[0] (a).position", "reach"),
     ("out of view", _with(0, position=[-0.4, 0.5]), "objects[0] (a).position", "view"),
     ("empty world", {"objects": []}, "objects", "empty"),
     ("no objects", {"name": "x"}, "objects", "missing"),
@@ -147,3 +154,26 @@ def test_world_edit_errors_name_the_object_once() -> None:
     assert str(added.value).count("obj02") == 2  # "object (obj02).name: duplicate name 'obj02'"
     assert str(outside.value).startswith("world_edit: object (zz).position: (5, 0.6) is out")
     assert str(outside.value).count("zz") == 1
+
+
+def test_objects_may_stand_in_view_beyond_reach() -> None:
+    world = parse_world(_with(0, position=[1.6, 0.0]), "far.yaml")   # in view, 1.61 m away
+    far = world.objects[0]
+    assert not in_reach(*far.position) and reach_distance(*far.position) > 1.5
+    assert in_reach(*world.objects[1].position)
+    shipped = load_world(WORLDS / "beyond_reach.yaml")
+    assert sorted(o.name for o in shipped.objects if not in_reach(*o.position)) == \
+        ["obj05", "obj06"]
+    with pytest.raises(WorldFileError, match="out of view"):
+        parse_world(_with(0, position=[3.2, 0.0]), "too_far.yaml")
+
+
+def test_random_worlds_in_reach_unless_asked_and_unchanged_by_far_objects() -> None:
+    plain = random_world(4, 2, seed=31)
+    assert all(in_reach(*o.position) for o in plain.objects)
+    more = random_world(4, 2, seed=31, out_of_reach=3)
+    assert more.objects[:8] == plain.objects
+    far = more.objects[8:]
+    assert [o.name for o in far] == ["c00_far0", "c01_far0", "c02_far0"]
+    assert not any(in_reach(*o.position) for o in far)
+    assert [o.category() for o in far] == [o.category() for o in plain.objects[0:6:2]]

@@ -149,7 +149,8 @@ class AttentionNode(Node):
             elif isinstance(item, ses.PublishMetrics):
                 if item.done and not self._done_logged:
                     self._done_logged = True
-                    self.get_logger().info(f"done after {item.counters.cycles} cycles")
+                    how = ": complete (the robot's own rule)" if item.complete else ""
+                    self.get_logger().info(f"done after {item.counters.cycles} cycles{how}")
                 self.pub_metrics.publish(conv.publish_metrics_to_msg(item, policy))
 
     def on_geometry(self, msg: StereoGeometry) -> None:

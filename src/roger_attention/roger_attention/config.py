@@ -216,6 +216,9 @@ class AttentionNodeConfig:
             every cycle while learning. Empty: kept in RAM only.
         learn: Q-learning: update the table (training) or only run it.
         max_cycles: Stop after this many control cycles; 0 runs until shut down.
+        stop_when_complete: Stop once no new object was stored for this many cycles and no
+            entry of the spatial map is left unmapped (the robot's own completion rule);
+            0 never stops so.
         wait_for_observers: Start only once this many subscriptions listen on
             /roger/policy_state (the orchestrator's monitor sets 1), so that no cycle goes
             unrecorded.
@@ -226,12 +229,14 @@ class AttentionNodeConfig:
     qtable_file: str = ""
     learn: bool = True
     max_cycles: int = field(default=0, metadata={"live": True})
+    stop_when_complete: int = field(default=0, metadata={"live": True})
     wait_for_observers: int = field(default=0, metadata={"live": True})
     retry_after_s: float = field(default=10.0, metadata={"live": True})
 
     def __post_init__(self) -> None:
         _check_count("AttentionNodeConfig", "seed", self.seed)
         _check_count("AttentionNodeConfig", "max_cycles", self.max_cycles)
+        _check_count("AttentionNodeConfig", "stop_when_complete", self.stop_when_complete)
         _check_count("AttentionNodeConfig", "wait_for_observers", self.wait_for_observers)
         _check_range("AttentionNodeConfig", "retry_after_s", self.retry_after_s, 0.0, 1e6,
                      low_open=True)

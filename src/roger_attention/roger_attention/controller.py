@@ -27,6 +27,7 @@ Nothing here blocks or does I/O; the controller only keeps the state between the
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -39,7 +40,6 @@ from roger_attention.fsm import (
     State,
     allowed_actions,
     check_allowed,
-    is_terminal,
     reward,
     transition,
 )
@@ -61,7 +61,7 @@ from roger_common.types import (
 
 #: Outcome strings of a CycleRecord.
 OUTCOMES: tuple[str, ...] = (
-    "identified", "new", "undetermined", "stored", "mapped", "lost", "none")
+    "identified", "new", "undetermined", "stored", "mapped", "remapped", "lost", "none")
 #: Goal ids of the looks of the initial scan (not control cycles) start here, far above the
 #: cycles' own ids (1, 2, ...). Each look has an id of its own: with one shared id, a
 #: retried look's late frame answered the next look and started a second chain of cycles.
@@ -120,9 +120,13 @@ class CycleRecord:
         entry_id: Entry in focus; -1 when none.
         position: Its position, robot frame (None when none).
         bbox: Its freshest ROI's bounding box in the left retina (None when none).
-        outcome: One of OUTCOMES.
+        outcome: One of OUTCOMES. A map update is "stored" (a new object), "mapped" (a
+            positive identification: an entry not mapped before) or "remapped" (an
+            entry mapped before, identified and mapped again).
         address: Long-term-memory address concerned; -1 when none.
         counters: Copy of the run counters after the cycle.
+        goal_id: Id of the cycle's physical goal (its convergence report carries it); 0
+            for a map update.
     """
 
     cycle: int
@@ -137,6 +141,7 @@ class CycleRecord:
     outcome: str
     address: int
     counters: RunCounters
+    goal_id: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """The record as JSON-ready data (:meth:`from_dict` reads it back)."""
@@ -157,7 +162,7 @@ class CycleRecord:
             position=None if position is None else as_point(position),
             bbox=None if bbox is None else _bbox(bbox),
             outcome=str(d["outcome"]), address=int(d["address"]),
-            counters=RunCounters(**d["counters"]))
+            counters=RunCounters(**d["counters"]), goal_id=int(d.get("goal_id", 0)))
 
 
 @dataclass
@@ -202,6 +207,12 @@ class AttentionController:
         self._scan: list[Position] = list(config.scan_targets)
         self._looks = 0
         self._restored_places: list[tuple[Position, int]] = []
+        # Entries mapped at some time that are still in the map (their latest position),
+        # and the places of those that left it since (forgotten or vanished): what tells a
+        # remap from a positive identification.
+        self._ever_mapped: dict[int, Position] = {}
+        self._gone_places: list[Position] = []
+        self._since_new = 0  # counted cycles since the last new representation was stored
 
     @property
     def state(self) -> State:
@@ -226,7 +237,12 @@ class AttentionController:
         """
         if not self._scan:
             if self._restored_places:
-                self.spatial_map.restore_mapped(self._restored_places)
+                for entry_id in self.spatial_map.restore_mapped(self._restored_places):
+                    self._ever_mapped[entry_id] = self.spatial_map.entries[entry_id].position
+                radius = self.config.spatial_map.association_radius
+                self._gone_places += [  # places mapped before the restart not seen again
+                    p for p, _ in self._restored_places
+                    if not any(math.dist(p, q) <= radius for q in self._ever_mapped.values())]
                 self._restored_places = []
             return None
         self._looks += 1
@@ -254,6 +270,8 @@ class AttentionController:
             "looks": self._looks, "policy_state": self.policy.state_dict(),
             "mapped": [{"position": list(p), "address": int(a)}
                        for p, a in self.spatial_map.mapped_places()],
+            "mapped_before": [list(p) for p in self._places_mapped_before()],
+            "cycles_since_new": self._since_new,
         }
 
     def restore_state(self, state: dict[str, Any]) -> None:
@@ -262,7 +280,8 @@ class AttentionController:
         Counters and the policy's state are taken back. Goal and request ids go on after
         the saved ones, skipping one each: the cycle in flight when the driver stopped may
         have used them. The places mapped then are mapped again at the end of the next
-        initial scan (the map itself is rebuilt by looking).
+        initial scan (the map itself is rebuilt by looking); those mapped before and
+        unmapped then still make an identification there a remap.
 
         Raises:
             ValueError: The state is not one of this format and policy, or is corrupt.
@@ -278,6 +297,8 @@ class AttentionController:
                       for p in state["mapped"]]
             if any(len(p) != 3 for p, _ in places):
                 raise ValueError("a mapped place is not an (x, y, z) position")
+            before = [as_point(p) for p in state.get("mapped_before", [])]
+            since_new = int(state.get("cycles_since_new", 0))
             self.policy.load_state_dict(state["policy_state"])
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"corrupt attention state ({exc!r})") from None
@@ -285,6 +306,24 @@ class AttentionController:
         self._next_goal_id, self._next_request_id = goal_id + 1, request_id + 1
         self._looks = looks
         self._restored_places = places  # type: ignore[assignment]
+        self._gone_places = before
+        self._ever_mapped = {}
+        self._since_new = since_new
+
+    @property
+    def cycles_since_new(self) -> int:
+        """Counted cycles since the last new representation (a new object stored in the
+        long-term memory); all cycles so far when none was."""
+        return self._since_new
+
+    def complete(self, stable_cycles: int) -> bool:
+        """The robot's own end of an inspection ("until no more new representations were
+        detected", section 5): no new representation for ``stable_cycles`` cycles and no
+        unmapped entry left in a map that holds something. Nothing here reads the ground
+        truth; whether every object was visited is for the evaluation to judge afterwards.
+        """
+        return (self._since_new >= stable_cycles and len(self.spatial_map) > 0
+                and self.spatial_map.all_mapped())
 
     @property
     def in_cycle(self) -> bool:
@@ -310,6 +349,7 @@ class AttentionController:
         changes = self.spatial_map.update(rois, now, visible)
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
+        self._track_mapped()
         return changes
 
     def begin_cycle(self, now: float) -> CyclePlan:
@@ -414,6 +454,7 @@ class AttentionController:
                 # a spurious region or an object that went away. Forget the place, so the
                 # policy shifts on instead of improving nothing.
                 self.spatial_map.forget(entry.entry_id)
+                self._track_mapped()
                 forgotten, entry = entry, None
             address = result.address if matched is MatchOutcome.IDENTIFIED and result else -1
             if matched is MatchOutcome.IDENTIFIED:
@@ -423,13 +464,14 @@ class AttentionController:
                 self.spatial_map.clear_mapping(entry.entry_id)
             mapped = entry is not None and entry.mapped
             next_state = transition(state, plan.action, matched, mapped)
-        self._count(plan.action, state)
+        self._count(plan.action, outcome)
         r = reward(state, plan.action, next_state, self.config.rewards)
         self._state = next_state
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
-        td = self.policy.update(state, plan.action, r, next_state, is_terminal(plan.action),
-                                self._allowed())
+        # Never terminal (docs/attention.md, the MDP): a shift is worth what the state it
+        # lands in is worth, a map update what follows it; the run's end only truncates.
+        td = self.policy.update(state, plan.action, r, next_state, False, self._allowed())
         if td is not None:
             self.td_errors.append(td)
         if self.focus is not None:
@@ -457,19 +499,57 @@ class AttentionController:
                 and address != mapped_address)
 
     def _map_update(self, state: State, result: MatchResult | None) -> tuple[str, int]:
+        entry = self.spatial_map.get(self.focus)
+        again = entry is not None and self._mapped_before(entry)
         if state.novelty:
             address = result.address if result is not None and result.address >= 0 else -1
             outcome = "stored"
         else:
             address = self._focus_address
-            outcome = "mapped"
-        if self.focus is not None and self.focus in self.spatial_map:
-            self.spatial_map.set_mapped(self.focus, address)
+            outcome = "remapped" if again else "mapped"
+        if entry is not None:
+            self.spatial_map.set_mapped(entry.entry_id, address)
+            self._ever_mapped[entry.entry_id] = entry.position
         return outcome, address
 
-    def _count(self, action: Action, state: State) -> None:
+    def _mapped_before(self, entry: MapEntry) -> bool:
+        """Whether the entry, or the place it stands at, was mapped before.
+
+        The entry itself was, if it lost its mapping since (it drifted, or a match
+        contradicted it). Its place was, if an entry mapped there left the map (forgotten
+        or vanished) and this one settled within the association radius of where that one
+        was last seen: that place is taken, so it makes one remap at most.
+        """
+        if entry.entry_id in self._ever_mapped:
+            return True
+        radius = self.config.spatial_map.association_radius
+        near = [(math.dist(p, entry.position), k) for k, p in enumerate(self._gone_places)]
+        near = [(d, k) for d, k in near if d <= radius]
+        if not near:
+            return False
+        del self._gone_places[min(near)[1]]
+        return True
+
+    def _track_mapped(self) -> None:
+        """Follow the entries mapped at some time; keep the places of those that left."""
+        for entry_id, position in list(self._ever_mapped.items()):
+            entry = self.spatial_map.get(entry_id)
+            if entry is None:
+                del self._ever_mapped[entry_id]
+                self._gone_places.append(position)
+            else:
+                self._ever_mapped[entry_id] = entry.position
+
+    def _places_mapped_before(self) -> list[Position]:
+        """Places mapped once and not mapped now (a restart keeps them)."""
+        unmapped = [p for eid, p in self._ever_mapped.items()
+                    if not self.spatial_map.entries[eid].mapped]
+        return [*self._gone_places, *unmapped]
+
+    def _count(self, action: Action, outcome: str) -> None:
         c = self.counters
         c.cycles += 1
+        self._since_new = 0 if outcome == "stored" else self._since_new + 1
         if action is Action.ATTENTION_SHIFT:
             c.attention_shifts += 1
         elif action is Action.VISUAL_IMPROVEMENT:
@@ -479,8 +559,10 @@ class AttentionController:
         else:
             # Allowed only with novelty or identity 1, so Table 2's second identity holds.
             c.map_updates += 1
-            if state.novelty:
+            if outcome == "stored":
                 c.new_objects += 1
+            elif outcome == "remapped":
+                c.remaps += 1
             else:
                 c.positive_identifications += 1
 
@@ -506,4 +588,5 @@ class AttentionController:
             td_error=td, entry_id=plan.entry_id,
             position=entry.position if entry is not None else None,
             bbox=_bbox(entry.roi.bbox) if entry is not None else None,
-            outcome=outcome, address=address, counters=dataclasses.replace(self.counters))
+            outcome=outcome, address=address, counters=dataclasses.replace(self.counters),
+            goal_id=plan.goal.goal_id if plan.goal is not None else 0)

@@ -27,7 +27,8 @@ def record_to_msg(record: CycleRecord, policy: str, stamp: float,
         entry_id=int(record.entry_id),
         position=point(record.position if record.position is not None else (math.nan,) * 3),
         x0=int(x0), y0=int(y0), x1=int(x1), y1=int(y1), outcome=record.outcome,
-        address=int(record.address), frame_stamp=seconds_to_time(frame_stamp))
+        address=int(record.address), frame_stamp=seconds_to_time(frame_stamp),
+        goal_id=int(record.goal_id))
 
 
 def report_to_msg(report: Report, policy: str) -> PolicyState:
@@ -36,7 +37,7 @@ def report_to_msg(report: Report, policy: str) -> PolicyState:
 
 
 def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_size: int,
-                done: bool, stamp: float) -> Metrics:
+                done: bool, stamp: float, complete: bool = False) -> Metrics:
     """The run counters as a Metrics message."""
     c = counters
     return Metrics(header=header(stamp), policy=policy, cycles=c.cycles,
@@ -44,14 +45,15 @@ def metrics_msg(counters: RunCounters, policy: str, map_entries: int, memory_siz
                    visual_improvements=c.visual_improvements,
                    haptic_improvements=c.haptic_improvements,
                    positive_identifications=c.positive_identifications,
-                   new_objects=c.new_objects, map_updates=c.map_updates,
-                   map_entries=map_entries, memory_size=memory_size, done=done)
+                   new_objects=c.new_objects, map_updates=c.map_updates, remaps=c.remaps,
+                   map_entries=map_entries, memory_size=memory_size, done=done,
+                   complete=complete)
 
 
 def publish_metrics_to_msg(out: PublishMetrics, policy: str) -> Metrics:
     """A session's PublishMetrics as a Metrics message."""
     return metrics_msg(out.counters, policy, out.map_entries, out.memory_size, out.done,
-                       out.stamp)
+                       out.stamp, out.complete)
 
 
 def spatial_map_msg(entries: Iterable[MapEntry], stamp: float,

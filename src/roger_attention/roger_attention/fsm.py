@@ -5,6 +5,10 @@ Novelty and identity are 0 just after an attention shift, before the match; the 
 follows every physical action sets identity on an identification and novelty when no match
 occurred after all trials. They are never both 1, which leaves the six states of Figure 3.
 The mapping bit is read from the spatial-map entry in focus.
+
+No transition is terminal: inspection never ends (interest keeps attention moving, section
+5), so what follows an attention shift or a map update is valued like anything else
+(docs/attention.md states the whole MDP).
 """
 
 from __future__ import annotations
@@ -170,16 +174,6 @@ def reward(state: State, action: Action, next_state: State, rewards: RewardConfi
     if state.bits == "010" and next_state.bits == "011":
         return rewards.unmapped + rewards.identification
     return 0.0
-
-
-def is_terminal(action: Action) -> bool:
-    """Whether ``action`` ends the episode of the ROI in focus.
-
-    Episodes are per ROI: a map update ends one with the object settled in the map, an
-    attention shift ends one by leaving the ROI (whatever follows belongs to the next
-    ROI's episode, so its value is not credited to the shift).
-    """
-    return action in (Action.MAP_UPDATE, Action.ATTENTION_SHIFT)
 
 
 def check_allowed(action: Action, allowed: Sequence[Action], state: State) -> None:

@@ -1,14 +1,15 @@
 """An abstract, FSM-only environment with stochastic match outcomes (section 4.2).
 
-It stands in for robot, perception and memory when training or testing the Q-learning
-policy: each step is one control cycle of Figure 3. The API follows Gymnasium:
+A unit-test fixture for the Q-learning code, with invented identification probabilities
+(FsmEnvConfig): never a stand-in for the robot's results (``roger train`` learns on the
+real core loop). Each step is one control cycle of Figure 3. The API follows Gymnasium:
 ``reset(seed) -> (obs, info)`` and ``step(action) -> (obs, reward, terminated, truncated,
 info)``; the observation is the FSM ``State``.
 
-An episode is one ROI's: it starts with attention landing on the ROI (``reset`` performs
-that shift and its match) and ends (terminated) with a map update, or with an attention
-shift that abandons the ROI, or after ``max_episode_steps`` (truncated). The next ``reset``
-lands on a fresh random ROI.
+The task is continuing, as the robot's (docs/attention.md): ``reset`` lands attention on a
+random ROI and runs the match, an attention shift lands it on the next random ROI, a map
+update settles the ROI in focus. Nothing terminates; an episode is truncated after
+``max_episode_steps`` cycles.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from roger_attention.fsm import (
     State,
     allowed_actions,
     check_allowed,
-    is_terminal,
     reward,
     transition,
 )
@@ -83,7 +83,7 @@ class FsmEnv:
         before = self.state
         outcome: MatchOutcome | None = None
         if action is Action.ATTENTION_SHIFT:
-            pass  # leaves the ROI: the episode ends, reset() lands on the next one
+            outcome = self._shift()
         elif action is Action.MAP_UPDATE:
             self.state = transition(before, action, None, True)
             self._mapped = True
@@ -96,14 +96,15 @@ class FsmEnv:
             self.state = transition(before, action, outcome, self._mapped)
         r = reward(before, action, self.state, self.config.rewards)
         self._steps += 1
-        terminated = is_terminal(action)
-        truncated = not terminated and self._steps >= self.config.max_episode_steps
-        self._done = terminated or truncated
+        truncated = self._steps >= self.config.max_episode_steps
+        self._done = truncated
         info = self._info(outcome)
-        info["abandoned"] = action is Action.ATTENTION_SHIFT
-        return self.state, r, terminated, truncated, info
+        # A shift away from a ROI still to be mapped leaves it unsettled.
+        info["abandoned"] = action is Action.ATTENTION_SHIFT and not before.mapping
+        return self.state, r, False, truncated, info
 
     def _shift(self) -> MatchOutcome:
+        """Attention lands on a fresh random ROI; the match after the shift runs."""
         cfg = self.config
         self._mapped = bool(self._rng.random() < cfg.p_mapped)
         # A mapped object was identified or stored, so memory holds it.
@@ -135,7 +136,7 @@ class TrainingLog:
     """What ``train_qtable`` saw, per episode.
 
     Attributes:
-        td_errors: Every TD error, in order (Figure 6's curve).
+        td_errors: Every TD error, in order.
         episode_mean_abs_td: Mean |TD error| of each episode.
         returns: Sum of rewards of each episode.
         lengths: Cycles of each episode.

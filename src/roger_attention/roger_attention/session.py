@@ -88,13 +88,15 @@ class PublishMap:
 
 @dataclass(frozen=True)
 class PublishMetrics:
-    """Publish the run's counters; ``done`` once the cycle budget is spent."""
+    """Publish the run's counters; ``done`` once the run reached its stop condition,
+    ``complete`` when that was the robot's completion rule."""
 
     counters: RunCounters
     map_entries: int
     memory_size: int
     done: bool
     stamp: float
+    complete: bool = False
 
 
 Outgoing = SendGoal | SendRequest | Report | PublishMap | PublishMetrics
@@ -108,7 +110,9 @@ class AttentionSession:
         config: The node's configuration (replace it to change live fields).
         state_path: The resume file, or None.
         qtable_path: Where a learning policy is saved after every cycle, or None.
-        done: True once ``max_cycles`` cycles are done.
+        done: True once ``max_cycles`` cycles are done, or the controller judged the
+            inspection complete (``stop_when_complete``).
+        complete: True when the run ended by the completion rule.
         resumed: True from a restore from ``state_path`` until the scan after it ended.
         resends: Goals and requests re-sent so far (no answer within ``retry_after_s``).
     """
@@ -124,6 +128,7 @@ class AttentionSession:
         self.ctl, self.config = ctl, config
         self.state_path, self.qtable_path = state_path, qtable_path
         self.done = False
+        self.complete = False
         self.resends = 0
         self._clock = clock
         self._sim_now = 0.0
@@ -215,6 +220,10 @@ class AttentionSession:
         return [out]
 
     def _next_cycle(self) -> list[Outgoing]:
+        stable = self.config.stop_when_complete
+        if stable and self.ctl.complete(stable):
+            self.done = self.complete = True
+            return [self._metrics(True)]
         if self.config.max_cycles and self.ctl.counters.cycles >= self.config.max_cycles:
             self.done = True
             return [self._metrics(True)]
@@ -254,7 +263,7 @@ class AttentionSession:
 
     def _metrics(self, done: bool) -> PublishMetrics:
         return PublishMetrics(dataclasses.replace(self.ctl.counters), len(self.ctl.spatial_map),
-                              self._memory_size, done, self._sim_now)
+                              self._memory_size, done, self._sim_now, self.complete)
 
     # -- resuming after a restart --------------------------------------------------------
     def _save(self) -> None:

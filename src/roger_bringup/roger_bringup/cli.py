@@ -6,13 +6,19 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from roger_common.errors import RogerError
+
+if TYPE_CHECKING:
+    from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
 DEFAULT_WORLD = Path("worlds/table1.yaml")
 #: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
 DEMO_WORLD = Path("worlds/inspection.yaml")
+#: Most cycles a run until the robot's own completion may take.
+COMPLETE_MAX = 2000
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -22,8 +28,9 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--cycles", type=int, default=None, help="control cycles to run (default 60)")
     g.add_argument("--until-complete", action="store_true",
-                   help="run until every object was visited and no new representation "
-                        "appeared for --stable-cycles cycles")
+                   help="run until the robot itself has stored no new object for "
+                        "--stable-cycles cycles and has no unmapped entry left (at most "
+                        "2000 cycles); whether every object was visited is judged afterwards")
     p.add_argument("--stable-cycles", type=int, default=40,
                    help="with --until-complete: cycles without a new object that end the run")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
@@ -66,6 +73,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from roger_bringup.run import run_graph
     metrics = run_graph(_run_options(args))
     print(json.dumps(metrics, indent=2))
+    if args.until_complete:
+        how = ("the robot's own completion rule" if metrics.get("complete")
+               else "the cycle budget (the robot never judged it complete)")
+        print(f"stopped after {metrics['cycles']} cycles by {how}; every object visited "
+              f"(ground truth, judged afterwards): "
+              f"{'yes' if metrics.get('every_object_visited') else 'no'} "
+              f"({metrics['objects_visited']}/{metrics['objects_in_world']})")
     return 0
 
 
@@ -84,53 +98,34 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
-    """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6."""
-    from roger_experiments.compare import compare
+def _training_worlds(files: list[Path] | None, spec: RandomWorlds | None,
+                     folder: Path) -> tuple[list[Path], dict]:
+    """The training world files: the files given, then the random worlds of ``spec``
+    written into ``folder``; and how they were made (for train.json)."""
+    from roger_experiments.train import describe_random, write_worlds
 
-    seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    if args.in_process:
-        from roger_experiments.core_loop import run_core
-        from roger_sim.world import load_world
-        world = load_world(args.world)
-
-        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
-            import time
-            t0 = time.monotonic()
-            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir)
-            assert recorder is not None
-            return recorder.close(time.monotonic() - t0)
-    else:
-        from roger_bringup.run import RunOptions, run_graph
-
-        def run_one(policy: str, seed: int, run_dir: Path) -> dict:
-            return run_graph(RunOptions(world=args.world, out=run_dir, policy=policy,
-                                        cycles=args.cycles, seed=seed,
-                                        progress=not args.quiet))
-    result = compare(args.world, seeds, args.out, run_one)
-    print()
-    print((args.out / "table2.md").read_text())
-    for c in result["claims"]:
-        print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
-    print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
-          f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
-    return 0
+    worlds = list(files or [])
+    made: dict = {"files": [str(w) for w in worlds]}
+    if spec is not None:
+        worlds += write_worlds(spec.worlds(), folder)
+        made["random"] = describe_random(spec)
+    return worlds, made
 
 
-def cmd_train(args: argparse.Namespace) -> int:
-    """``roger train``: Q-learning over worlds and seeds; writes the Q-table and TD curve."""
+def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: Path,
+           graph: bool, quiet: bool) -> dict:
+    """Q-learning over ``worlds`` x ``seeds`` into ``out`` (in process unless ``graph``)."""
     import time
 
     from roger_experiments.train import train
 
-    seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    if args.graph:
+    if graph:
         from roger_bringup.run import RunOptions, run_graph
 
         def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
             return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
-                                        cycles=args.cycles, seed=seed, qtable=qtable,
-                                        progress=not args.quiet))
+                                        cycles=cycles, seed=seed, qtable=qtable,
+                                        progress=not quiet))
     else:
         from roger_experiments.core_loop import run_core
         from roger_sim.world import load_world
@@ -138,13 +133,108 @@ def cmd_train(args: argparse.Namespace) -> int:
         def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
             t0 = time.monotonic()
             # The loop saves the Q-table it learnt to ``qtable`` when it closes.
-            recorder, _ = run_core(load_world(world), "qlearning", args.cycles, seed=seed,
+            recorder, _ = run_core(load_world(world), "qlearning", cycles, seed=seed,
                                    out=run_dir, qtable_path=qtable)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
-    summary = train(args.worlds, seeds, args.out, run_one)
-    print(json.dumps(summary, indent=2))
-    print(f"Q-table: {args.out / 'qtable.json'}; TD curve: {args.out / 'td_errors.png'}")
+    if (out / "qtable.json").exists():
+        (out / "qtable.json").unlink()  # training starts from a fresh table
+    return train(worlds, seeds, out, run_one, describe=made)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``roger compare``: both policies, same world and seeds; Table 2 and Figures 4-6.
+
+    The Q-learning policy runs a trained Q-table, greedy and frozen: ``--qtable FILE``, or
+    one ``roger train`` learns first (in process) on random worlds other than this one.
+    """
+    from roger_experiments.compare import TrainedTable, compare
+    from roger_experiments.train import RandomWorlds
+    from roger_sim.world import load_world
+
+    world = load_world(args.world)
+    seeds = list(range(args.seed0, args.seed0 + args.seeds))
+    if args.qtable is not None:
+        from roger_attention.qlearning import QTable
+        QTable.load(args.qtable)  # a missing or corrupt table is refused before any run
+        qtable, origin = args.qtable, "given with --qtable"
+    else:
+        spec = RandomWorlds(count=args.train_worlds)
+        train_out = args.out / "train"
+        print(f"training the Q-learning policy first: {spec.count} random worlds (seeds "
+              f"{spec.seed0}-{spec.seed0 + spec.count - 1}) x seeds 0-{args.train_seeds - 1}, "
+              f"{args.cycles} cycles each, in process -> {train_out}")
+        files, made = _training_worlds(None, spec, train_out / "worlds")
+        _train(files, made, list(range(args.train_seeds)), args.cycles, train_out,
+               graph=False, quiet=args.quiet)
+        qtable, origin = train_out / "qtable.json", "trained now by `roger train` (in process)"
+    trained = TrainedTable.of(qtable, world, origin)
+    if trained.world_seen:
+        print(f"roger compare: warning: {args.world} is one of the worlds {qtable} was "
+              "trained on", file=sys.stderr)
+    stable = args.stable_cycles
+    if args.in_process:
+        from roger_experiments.core_loop import run_core
+
+        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
+            import time
+            t0 = time.monotonic()
+            recorder, _ = run_core(world, policy, COMPLETE_MAX if complete else args.cycles,
+                                   seed=seed, out=run_dir,
+                                   stop_when_complete=stable if complete else 0,
+                                   qtable_path=qtable if policy == "qlearning" else None,
+                                   learn=False)
+            assert recorder is not None
+            return recorder.close(time.monotonic() - t0)
+    else:
+        from roger_bringup.run import RunOptions, run_graph
+
+        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
+            return run_graph(RunOptions(
+                world=args.world, out=run_dir, policy=policy,
+                cycles=None if complete else args.cycles, until_complete=complete,
+                stable_cycles=stable, max_cycles=COMPLETE_MAX, seed=seed,
+                qtable=qtable if policy == "qlearning" else None, learn=False,
+                progress=not args.quiet))
+
+    def run_one(policy: str, seed: int, run_dir: Path) -> dict:
+        return run(policy, seed, run_dir, False)
+
+    def run_complete(policy: str, seed: int, run_dir: Path) -> dict:
+        return run(policy, seed, run_dir, True)
+    result = compare(args.world, seeds, args.out, run_one, trained=trained,
+                     run_complete=run_complete if stable > 0 else None)
+    print()
+    print((args.out / "table2.md").read_text())
+    print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
+    for c in result["claims"]:
+        print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
+    c = result["completion"]
+    if c is not None:
+        print(f"  {c['verdict']:>26}: {c['claim']} ({c['every_object_visited']}/{c['runs']} "
+              f"runs; the robot's rule ended {c['complete']}/{c['runs']})")
+    print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
+          f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """``roger train``: Q-learning over worlds and seeds; writes the Q-table and Figure 6."""
+    from roger_experiments.train import RandomWorlds
+
+    count = args.random_worlds
+    if count is None:
+        count = 0 if args.worlds else RandomWorlds().count
+    spec = RandomWorlds(count=count, seed0=args.world_seed0) if count > 0 else None
+    worlds, made = _training_worlds(args.worlds, spec, args.out / "worlds")
+    if not worlds:
+        raise RogerError("roger train: no training world (give --worlds or --random-worlds)")
+    seeds = list(range(args.seed0, args.seed0 + args.seeds))
+    summary = _train(worlds, made, seeds, args.cycles, args.out, args.graph, args.quiet)
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("q", "worlds")},
+                     indent=2))
+    print(f"Q-table: {args.out / 'qtable.json'}; Figure 6: {args.out / 'td_errors.png'}; "
+          f"summary: {args.out / 'train.json'}")
     return 0
 
 
@@ -182,7 +272,7 @@ def main(argv: list[str] | None = None) -> None:
             ("compare", "both policies on the same world and seeds: Table 2, Figures 4-6",
              DEFAULT_WORLD, 204, 3, Path("runs/compare")),
             ("demo", "the main job of make demo: roger compare on the default world",
-             DEMO_WORLD, 204, 3, Path("runs/demo"))):
+             DEMO_WORLD, 204, 5, Path("runs/demo"))):
         p_cmp = sub.add_parser(name, help=help_text)
         p_cmp.add_argument("--world", type=Path, default=world, help="world file (YAML)")
         p_cmp.add_argument("--cycles", type=int, default=cycles, help="control cycles per run")
@@ -191,6 +281,18 @@ def main(argv: list[str] | None = None) -> None:
         p_cmp.add_argument("--out", type=Path, default=out, help="output folder")
         p_cmp.add_argument("--in-process", action="store_true",
                            help="run the same core loop without ROS (faster, no graph)")
+        p_cmp.add_argument("--qtable", type=Path, default=None,
+                           help="trained Q-table for the Q-learning policy (run greedy, "
+                                "frozen); default: roger train first, into OUT/train")
+        p_cmp.add_argument("--train-worlds", type=int, default=4,
+                           help="without --qtable: random training worlds")
+        p_cmp.add_argument("--train-seeds", type=int, default=2,
+                           help="without --qtable: training seeds per world")
+        p_cmp.add_argument("--stable-cycles", type=int, default=40,
+                           help="also run each policy and seed until the robot's own "
+                                "completion rule (no new object for this many cycles, no "
+                                "unmapped entry; at most 2000 cycles) for the report's "
+                                "'every object visited'; 0 skips those runs")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         p_cmp.set_defaults(func=cmd_compare)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
@@ -203,9 +305,13 @@ def main(argv: list[str] | None = None) -> None:
     p_replay.add_argument("--out", type=Path, default=Path("runs/replay"), help="output folder")
     p_replay.set_defaults(func=cmd_replay)
     p_train = sub.add_parser("train", help="train the Q-learning policy over worlds and seeds")
-    p_train.add_argument("--worlds", type=Path, nargs="+",
-                         default=[Path("worlds/table1.yaml"), Path("worlds/shapes.yaml")],
-                         help="world files to train on, in order")
+    p_train.add_argument("--worlds", type=Path, nargs="+", default=None,
+                         help="world files to train on, in order (default: random worlds)")
+    p_train.add_argument("--random-worlds", type=int, default=None, metavar="N",
+                         help="also train on N random worlds of the demo world's kind "
+                              "(roger_sim.worldgen; default 4 without --worlds, else 0)")
+    p_train.add_argument("--world-seed0", type=int, default=100,
+                         help="seed of the first random world (the next ones follow)")
     p_train.add_argument("--seeds", type=int, default=2, help="seeds per world")
     p_train.add_argument("--seed0", type=int, default=0, help="first seed")
     p_train.add_argument("--cycles", type=int, default=204, help="control cycles per run")

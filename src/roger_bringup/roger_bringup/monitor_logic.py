@@ -1,9 +1,10 @@
 """The monitor's bookkeeping, message by message, without a node around it.
 
 The live monitor (``monitor_node.MonitorNode``) and ``roger replay`` (``record.replay``) must
-score a run the same way, so both feed this one class with the same four message types:
+score a run the same way, so both feed this one class with the same five message types:
 the world's objects (GroundTruth), the label images of each stereo pair
-(GroundTruthLabels), each finished cycle (PolicyState) and the live counters (Metrics).
+(GroundTruthLabels), whether each goal converged (ConvergenceEvent), each finished cycle
+(PolicyState) and the live counters (Metrics).
 Messages are read by attribute only, so this module needs no rclpy.
 """
 
@@ -17,18 +18,22 @@ from typing import Any
 
 import numpy as np
 
+from roger_attention.controller import is_look
 from roger_common.types import Action, ObjectSpec
 from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 
 #: Label images kept, by stamp, for the policy states that refer to them.
 LABELS_KEPT = 32
+#: Convergence events kept, by goal id, for the policy states that refer to them.
+GOALS_KEPT = 64
 #: Wall seconds a policy state waits for the label image of its frame (DDS orders messages
 #: per topic only) before it is scored without it.
 LABELS_WAIT_S = 2.0
 #: Metrics message fields that are Table 2 counters.
 COUNTER_FIELDS: tuple[str, ...] = (
     "cycles", "attention_shifts", "improvements", "visual_improvements",
-    "haptic_improvements", "positive_identifications", "new_objects", "map_updates")
+    "haptic_improvements", "positive_identifications", "new_objects", "map_updates",
+    "remaps")
 
 
 def spec_from_msg(o: Any) -> ObjectSpec:
@@ -63,6 +68,8 @@ class RunMonitor:
         self.done = False
         self._clock = clock
         self._newest_label: tuple[int, int] | None = None
+        self.converged: OrderedDict[int, bool] = OrderedDict()
+        self._newest_goal = 0
         #: Policy states not recorded yet (in arrival order) and when each arrived.
         self._waiting: deque[tuple[Any, float]] = deque()
 
@@ -87,12 +94,27 @@ class RunMonitor:
                                                                          key)
         self.flush()
 
+    def on_convergence(self, msg: Any) -> None:
+        """A goal finished: keep whether it converged, by goal id."""
+        goal_id = int(msg.goal_id)
+        self.converged[goal_id] = bool(msg.converged)
+        while len(self.converged) > GOALS_KEPT:
+            self.converged.popitem(last=False)
+        if not is_look(goal_id):
+            self._newest_goal = max(self._newest_goal, goal_id)
+        self.flush()
+
     def _awaits_labels(self, msg: Any) -> bool:
-        """True while the labels of this state's frame may still come (they come in order)."""
+        """True while the labels of this state's frame, or its goal's convergence event,
+        may still come (each comes in order on its own topic)."""
         key = _stamp_key(msg.frame_stamp)
-        return (msg.action != Action.MAP_UPDATE and msg.x1 > msg.x0 and key != (0, 0)
-                and key not in self.labels
-                and (self._newest_label is None or self._newest_label < key))
+        labels = (msg.action != Action.MAP_UPDATE and msg.x1 > msg.x0 and key != (0, 0)
+                  and key not in self.labels
+                  and (self._newest_label is None or self._newest_label < key))
+        goal_id = int(getattr(msg, "goal_id", 0))
+        event = (goal_id > 0 and goal_id not in self.converged
+                 and self._newest_goal < goal_id)
+        return labels or event
 
     def row_from_state(self, msg: Any) -> CycleRow:
         """The CycleRow of a PolicyState message, scored against the labels of its frame."""
@@ -101,7 +123,9 @@ class RunMonitor:
         if msg.action != Action.MAP_UPDATE and key in self.labels and msg.x1 > msg.x0:
             labels, names = self.labels[key]
             seen = object_under_window(labels, names, (msg.x0, msg.y0, msg.x1, msg.y1))
-        true_object = self.recorder.scorer.true_object_for(msg.action, msg.entry_id, seen)
+        true_object = self.recorder.scorer.true_object_for(msg.action, msg.entry_id, seen,
+                                                           msg.outcome)
+        goal_id = int(getattr(msg, "goal_id", 0))
         td = float(msg.td_error)
         p = msg.position
         return CycleRow(
@@ -110,7 +134,8 @@ class RunMonitor:
             roi=int(msg.entry_id), true_object=true_object, outcome=msg.outcome,
             state_after=msg.state_after, address=int(msg.address),
             position=(p.x, p.y, p.z) if msg.entry_id >= 0 and math.isfinite(p.x) else None,
-            sim_time=_seconds(msg.header.stamp))
+            sim_time=_seconds(msg.header.stamp),
+            converged=self.converged.get(goal_id) if goal_id else None)
 
     def on_state(self, msg: Any) -> None:
         """One finished cycle: find the object under the attention window, record it.
@@ -139,6 +164,8 @@ class RunMonitor:
 
     def on_metrics(self, msg: Any) -> None:
         """Live counters; ``done`` ends the run."""
-        self.recorder.counters = {k: int(getattr(msg, k)) for k in COUNTER_FIELDS}
+        # A bag recorded before a counter existed has none: it counts 0 there.
+        self.recorder.counters = {k: int(getattr(msg, k, 0)) for k in COUNTER_FIELDS}
         if msg.done:
             self.done = True
+            self.recorder.complete = bool(getattr(msg, "complete", False))

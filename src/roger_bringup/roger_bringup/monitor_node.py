@@ -1,13 +1,15 @@
 """The orchestrator's own node: watches the run and scores it against the ground truth.
 
-It subscribes to what the attention node reports (policy state, metrics) and to the
-simulator's ground truth (labels per frame, the world's objects) and hands every message
+It subscribes to what the attention node reports (policy state, metrics), to the
+simulator's convergence events and to its ground truth (labels per frame, the world's
+objects) and hands every message
 to a RunMonitor (the same logic ``roger replay`` uses). It publishes nothing and never
 influences the run.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
@@ -16,8 +18,16 @@ from rclpy.node import Node
 from roger_bringup.monitor_logic import RunMonitor
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE
 from roger_experiments.evaluation import RunRecorder
-from roger_interfaces.msg import GroundTruth, GroundTruthLabels, Metrics, PolicyState
+from roger_interfaces.msg import (
+    ConvergenceEvent,
+    GroundTruth,
+    GroundTruthLabels,
+    Metrics,
+    PolicyState,
+)
 
+#: Wall seconds the monitor waits to hear the simulator before it lets the run start.
+GATE_TIMEOUT_S = 30.0
 #: The node names a complete graph has.
 GRAPH_NODES: tuple[str, ...] = ("roger_sim", "roger_perception", "roger_memory",
                                 "roger_attention")
@@ -30,16 +40,35 @@ class MonitorNode(Node):
         super().__init__("roger_monitor", **kwargs)
         self.monitor = RunMonitor(recorder)
         self.recorder = recorder
-        self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
-                                 RELIABLE)
         self.create_subscription(Metrics, "/roger/metrics", self.monitor.on_metrics, RELIABLE)
-        self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
-                                 self.monitor.on_labels, IMAGES)
         self.create_subscription(GroundTruth, "/roger/ground_truth", self.monitor.on_truth,
                                  LATCHED)
+        # The attention node starts once it sees the /roger/policy_state subscription, so
+        # that one comes only once these hear the simulator: the first frames' labels and
+        # the first goals' convergence events (volatile) would be lost otherwise.
+        self._gated = [
+            self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
+                                     self.monitor.on_labels, IMAGES),
+            self.create_subscription(ConvergenceEvent, "/roger/convergence",
+                                     self.monitor.on_convergence, RELIABLE)]
+        self._gate_deadline = time.monotonic() + GATE_TIMEOUT_S
+        self._gate_timer = self.create_timer(0.02, self._open_gate,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
         # Records policy states whose frame's labels are overdue (wall clock: sim time
         # stands still while the graph waits).
         self.create_timer(0.1, self.monitor.flush, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _open_gate(self) -> None:
+        unheard = [s.topic_name for s in self._gated if s.get_publisher_count() == 0]
+        if unheard and time.monotonic() < self._gate_deadline:
+            return
+        if unheard:
+            self.get_logger().warning(f"no publisher after {GATE_TIMEOUT_S:.0f} s on "
+                                      f"{', '.join(unheard)}; recording cycles anyway")
+        self._gate_timer.cancel()
+        self.destroy_timer(self._gate_timer)
+        self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
+                                 RELIABLE)
 
     @property
     def cycles(self) -> int:

@@ -65,7 +65,8 @@ INFINITE = (9223372036, 854775807)
 _NO_START = 2**63 - 1
 #: Topics replay reads.
 REPLAY_TOPICS: tuple[str, ...] = ("/roger/ground_truth", "/roger/ground_truth/labels",
-                                  "/roger/policy_state", "/roger/metrics")
+                                  "/roger/convergence", "/roger/policy_state",
+                                  "/roger/metrics")
 
 
 class RecordingError(RogerError):
@@ -592,6 +593,7 @@ def replay(bag: Path, out_dir: Path) -> dict[str, Any]:
     monitor = RunMonitor(recorder)
     handlers = {"/roger/ground_truth": monitor.on_truth,
                 "/roger/ground_truth/labels": monitor.on_labels,
+                "/roger/convergence": monitor.on_convergence,
                 "/roger/policy_state": monitor.on_state, "/roger/metrics": monitor.on_metrics}
     policy = meta.get("policy")
     try:

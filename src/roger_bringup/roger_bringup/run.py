@@ -81,9 +81,8 @@ class RunOptions:
     hang_timeout_s: float | None = HANG_TIMEOUT_S
 
     def budget(self) -> int:
-        """Cycle budget handed to the attention node."""
-        if self.until_complete:
-            return self.cycles or self.max_cycles
+        """Cycle budget handed to the attention node (with ``until_complete``, the most a
+        run that never completes may take)."""
         return int(self.cycles or self.max_cycles)
 
 
@@ -100,6 +99,7 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
         "perception": [],
         "memory": p(memory_file=memory, seed=opt.seed),
         "attention": p(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
+                       stop_when_complete=opt.stable_cycles if opt.until_complete else 0,
                        qtable_file=qtable, learn=opt.learn, wait_for_observers=observers,
                        retry_after_s=RETRY_AFTER_S),
     }
@@ -256,16 +256,17 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
                             f"new {c.get('new_objects', 0)} ids "
                             f"{c.get('positive_identifications', 0)}")
             if monitor.done:
+                # The attention node ends the run: its budget, or (--until-complete) its
+                # own completion rule; the ground truth has no say in it.
                 done_seen = done_seen or time.monotonic()
+                ended = "complete" if recorder.complete else "done"
                 if monitor.cycles >= int(c.get("cycles", 0)):
-                    status = "done"
+                    status = ended
                     break
                 if time.monotonic() - done_seen > 5.0:
-                    status = f"done, {int(c.get('cycles', 0)) - monitor.cycles} cycles unrecorded"
+                    status = (f"{ended}, {int(c.get('cycles', 0)) - monitor.cycles} cycles "
+                              "unrecorded")
                     break
-            if opt.until_complete and _complete(recorder, opt.stable_cycles):
-                status = "complete"
-                break
             if time.monotonic() > deadline:
                 raise RunError(f"the run did not finish within {timeout:.0f} s "
                                f"({monitor.cycles} cycles); node logs are in {out / 'logs'}")
@@ -305,13 +306,6 @@ def watch_command(env: dict[str, str]) -> str:
     return (f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} ROS_AUTOMATIC_DISCOVERY_RANGE="
             f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')} AMENT_PREFIX_PATH="
             f"{sys.prefix}:$AMENT_PREFIX_PATH ros2 topic echo /roger/metrics")
-
-
-def _complete(recorder: RunRecorder, stable_cycles: int) -> bool:
-    """Every object visited and no new representation for ``stable_cycles`` cycles."""
-    scores = recorder.scorer.results()
-    return (scores["objects_visited"] >= scores["objects_in_world"] > 0
-            and recorder.scorer.cycles_since_new >= stable_cycles)
 
 
 def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = None,

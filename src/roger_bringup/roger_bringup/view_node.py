@@ -134,7 +134,7 @@ class ViewNode(Node):
 
     def on_metrics(self, msg: Metrics) -> None:
         """Counters after a cycle; draws the cycle waiting for them."""
-        self._counters = {k: int(getattr(msg, k)) for k in COUNTER_FIELDS}
+        self._counters = {k: int(getattr(msg, k, 0)) for k in COUNTER_FIELDS}
         if self._pending is not None and int(msg.cycles) >= int(self._pending.cycle):
             self.render(self._pending)
             self._pending = None

@@ -100,19 +100,31 @@ class HapticReading:
 
 @dataclass(frozen=True)
 class ControllerReport:
-    """Status of the five controllers after a goal, plus how long they took."""
+    """Status of the five controllers after a goal, plus how long they took.
+
+    Attributes:
+        goal_id: The goal.
+        states: Status of every controller (a FAILED one stays FAILED until it gets a new
+            reference, as Roger's controllers reported it).
+        sim_time: Simulated time at the end of the goal.
+        physics_steps: Physics steps the goal took.
+        driven: The controllers the goal drove; empty: all of them.
+    """
 
     goal_id: int
     states: dict[str, ControllerState]
     sim_time: float
     physics_steps: int
+    driven: tuple[str, ...] = ()
 
     @property
     def converged(self) -> bool:
-        """True when no controller failed and none is still transient."""
+        """True when none of the controllers the goal drove failed or is still transient
+        (an arm that failed an earlier goal does not fail this one)."""
+        names = self.driven or tuple(self.states)
         return all(
-            s in (ControllerState.CONVERGED, ControllerState.NO_REFERENCE)
-            for s in self.states.values()
+            self.states[n] in (ControllerState.CONVERGED, ControllerState.NO_REFERENCE)
+            for n in names
         )
 
 
@@ -273,7 +285,12 @@ class RunCounters:
     """The counters of Table 2, kept so that its two identities hold by construction:
 
     attention_shifts + improvements + map_updates == cycles, and
-    map_updates == positive_identifications + new_objects.
+    map_updates == positive_identifications + new_objects + remaps.
+
+    A positive identification is the identification that maps an entry (a place of the
+    spatial map) not mapped before; an identification that maps again an entry that was
+    mapped and lost its mapping since (it drifted, was contradicted, or was lost from the
+    map and seen again at its place) is a remap.
     """
 
     cycles: int = 0
@@ -283,6 +300,7 @@ class RunCounters:
     positive_identifications: int = 0
     new_objects: int = 0
     map_updates: int = 0
+    remaps: int = 0
 
     @property
     def improvements(self) -> int:
@@ -300,6 +318,7 @@ class RunCounters:
             "positive_identifications": self.positive_identifications,
             "new_objects": self.new_objects,
             "map_updates": self.map_updates,
+            "remaps": self.remaps,
         }
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
 from roger_attention.policies import Policy, make_policy
-from roger_common.types import Action, MatchResult, StereoFrame, WorldSpec
+from roger_common.types import Action, ControllerReport, MatchResult, StereoFrame, WorldSpec
 from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
@@ -67,6 +67,10 @@ class CoreLoop:
                                            learn=self.learn)
         self.ctl = AttentionController(cfg, chosen, rng)
         self.last_frame: StereoFrame | None = None
+        #: The convergence report of the last goal executed.
+        self.last_report: ControllerReport | None = None
+        #: True once ``cycles`` stopped by the robot's completion rule.
+        self.complete = False
         self.stage_seconds: dict[str, float] = dict.fromkeys(LOOP_STAGES, 0.0)
         self._look()
 
@@ -107,7 +111,7 @@ class CoreLoop:
         request = plan.memory_request
         if plan.goal is not None:
             with self._timed("sim"):
-                _, frame = self.sim.run_goal(plan.goal)
+                self.last_report, frame = self.sim.run_goal(plan.goal)
             self._perceive(frame)
             with self._timed("policy"):
                 request = self.ctl.match_request()
@@ -117,11 +121,18 @@ class CoreLoop:
         with self._timed("policy"):
             return self.ctl.end_cycle(result, self.sim.sim_time)
 
-    def cycles(self, n: int, max_idle: int = 50) -> Iterator[CycleRecord]:
+    def cycles(self, n: int, max_idle: int = 50,
+               stop_when_complete: int = 0) -> Iterator[CycleRecord]:
         """Run until ``n`` control cycles are counted, yielding each record; idle looks (an
-        empty map) are not yielded, and ``max_idle`` of them end the run early."""
+        empty map) are not yielded, and ``max_idle`` of them end the run early. With
+        ``stop_when_complete`` the run also ends (``complete`` set) once the controller
+        judges the inspection complete (AttentionController.complete), as the attention
+        node does with the parameter of that name."""
         idle = 0
         while self.ctl.counters.cycles < n and idle < max_idle:
+            if stop_when_complete and self.ctl.complete(stop_when_complete):
+                self.complete = True
+                return
             record = self.step()
             if record is None:
                 idle += 1
@@ -129,12 +140,21 @@ class CoreLoop:
             yield record
 
     def true_object(self, record: CycleRecord) -> str | None:
-        """Ground truth: the object under the attention window of a physical cycle."""
+        """Ground truth: the object that fills the attention window of a physical cycle
+        (None for a map update and for a "lost" cycle, which looked at nothing)."""
         frame = self.last_frame
-        if (record.action == Action.MAP_UPDATE or record.bbox is None or frame is None
-                or frame.left_labels is None):
+        if (record.action == Action.MAP_UPDATE or record.outcome == "lost"
+                or record.bbox is None or frame is None or frame.left_labels is None):
             return None
         return object_under_window(frame.left_labels, frame.label_names, record.bbox)
+
+    def converged(self, record: CycleRecord) -> bool | None:
+        """Whether the servo goal of a physical cycle converged (None for a map update); a
+        haptic improvement on an object beyond reach fails."""
+        report = self.last_report
+        if record.goal_id == 0 or report is None or report.goal_id != record.goal_id:
+            return None
+        return report.converged
 
     def close(self) -> None:
         """Release the simulator; a learning Q-table with a file is saved there."""
@@ -143,18 +163,21 @@ class CoreLoop:
         self.sim.close()
 
 
-def row_from_record(record: CycleRecord, true_object: str | None, sim_time: float) -> CycleRow:
+def row_from_record(record: CycleRecord, true_object: str | None, sim_time: float,
+                    converged: bool | None = None) -> CycleRow:
     """A CycleRecord as an evaluation row."""
     return CycleRow(cycle=record.cycle, state=record.state_before, action=int(record.action),
                     reward=record.reward, td_error=record.td_error, roi=record.entry_id,
                     true_object=true_object, outcome=record.outcome,
                     state_after=record.state_after, address=record.address,
-                    position=record.position, sim_time=sim_time)
+                    position=record.position, sim_time=sim_time, converged=converged)
 
 
 def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
-             out: Path | None = None, **kwargs: Any) -> tuple[RunRecorder | None, CoreLoop]:
-    """Run ``cycles`` control cycles in process; record them to ``out`` if given.
+             out: Path | None = None, stop_when_complete: int = 0,
+             **kwargs: Any) -> tuple[RunRecorder | None, CoreLoop]:
+    """Run ``cycles`` control cycles in process (fewer when ``stop_when_complete`` ends the
+    run by the robot's completion rule); record them to ``out`` if given.
 
     Returns:
         The recorder (None without ``out``) and the loop (for its counters and map).
@@ -165,13 +188,17 @@ def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
         recorder = RunRecorder(out, list(world.objects),
                                {"policy": policy, "world": world.source, "seed": seed})
     try:
-        for record in loop.cycles(cycles):
+        for record in loop.cycles(cycles, stop_when_complete=stop_when_complete):
             seen = loop.true_object(record)
             if recorder is not None:
                 true_obj = recorder.scorer.true_object_for(int(record.action),
-                                                           record.entry_id, seen)
-                recorder.add(row_from_record(record, true_obj, loop.sim.sim_time))
+                                                           record.entry_id, seen,
+                                                           record.outcome)
+                recorder.add(row_from_record(record, true_obj, loop.sim.sim_time,
+                                             loop.converged(record)))
                 recorder.counters = record.counters.as_dict()
     finally:
         loop.close()
+    if recorder is not None:
+        recorder.complete = loop.complete
     return recorder, loop

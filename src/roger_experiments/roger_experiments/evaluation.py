@@ -5,11 +5,15 @@ never see. Pure Python: the ROS monitor and the in-process loop both feed it.
 
 Scoring rules (issue 7):
 - objects with identical shape, size, intensity, weight and texture are one category;
-- identification_precision: share of positive identifications whose memory address was
-  first stored from an object of the same category as the one in view;
+- identification_precision: share of positive identifications (first mappings) whose
+  memory address was first stored from an object of the same category as the one in view;
+- remap_precision: the same for remaps (an entry mapped before, identified again);
 - novelty_precision: share of new-object detections made while no object of that category
   was yet in memory;
-- objects_visited: world objects that were under the attention window at least once.
+- objects_visited: world objects that filled the attention window at least once
+  (``object_under_window``); a "lost" cycle shows no object and visits nothing;
+- failed_goals: physical actions whose servo goal failed (``converged`` 0 in cycles.csv),
+  e.g. a haptic improvement on an object beyond the arms' reach.
 """
 
 from __future__ import annotations
@@ -30,8 +34,12 @@ from roger_common.types import Action, ObjectSpec
 #: cycles.csv columns; the first eight are a contract (issue 7), later ones are extensions.
 CSV_COLUMNS: tuple[str, ...] = (
     "cycle", "state", "action", "reward", "td_error", "roi", "true_object", "outcome",
-    "state_after", "address", "x", "y", "z", "sim_time",
+    "state_after", "address", "x", "y", "z", "sim_time", "converged",
 )
+#: Share of the attention window's area an object's extent must exceed for the window to
+#: show that object (a visit). Measured on three worlds: windows holding one object reach
+#: 0.67 or more, windows spanning two objects 0.26-0.53 for the larger (docs/attention.md).
+WINDOW_FILL = 0.5
 ACTION_NAMES: dict[int, str] = {
     Action.ATTENTION_SHIFT: "attention_shift",
     Action.VISUAL_IMPROVEMENT: "visual_improvement",
@@ -56,6 +64,7 @@ class CycleRow:
     address: int = -1
     position: tuple[float, float, float] | None = None
     sim_time: float = 0.0
+    converged: bool | None = None
 
     def as_csv(self) -> list[str]:
         """The row's cells in CSV_COLUMNS order (empty cells for unknowns)."""
@@ -67,12 +76,20 @@ class CycleRow:
         return [str(self.cycle), self.state, ACTION_NAMES.get(self.action, str(self.action)),
                 f"{self.reward:.6g}", td, str(self.roi), self.true_object or "", self.outcome,
                 self.state_after, str(self.address),
-                *("" if math.isnan(v) else f"{v:.4f}" for v in pos), f"{self.sim_time:.4f}"]
+                *("" if math.isnan(v) else f"{v:.4f}" for v in pos), f"{self.sim_time:.4f}",
+                "" if self.converged is None else str(int(self.converged))]
 
 
 def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
                         bbox: tuple[int, int, int, int]) -> str | None:
-    """The world object most of the attention window's pixels show; None for the ground.
+    """The world object that fills most of the attention window; None when none does.
+
+    The candidate is the object with the most pixels in the window. It fills the window
+    when the bounding box of those pixels covers more than WINDOW_FILL of the window's
+    area: the object's extent, not its pixel count, because a prism covers half of its
+    own bounding box and a ROI's box keeps a margin around the object (docs/attention.md
+    has the measured distribution). A window spanning two objects, or mostly ground,
+    shows none.
 
     Args:
         labels: Per-pixel object index of the left retina, -1 for ground and robot.
@@ -81,10 +98,14 @@ def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
     """
     x0, y0, x1, y1 = bbox
     window = labels[max(0, y0):max(0, y1), max(0, x0):max(0, x1)]
-    window = window[window >= 0]
-    if window.size == 0:
+    objects = window[window >= 0]
+    if objects.size == 0:
         return None
-    idx = int(np.bincount(window).argmax())
+    idx = int(np.bincount(objects).argmax())
+    rows, cols = np.nonzero(window == idx)
+    extent = (int(rows.max() - rows.min()) + 1) * (int(cols.max() - cols.min()) + 1)
+    if extent <= WINDOW_FILL * window.size:
+        return None
     return names[idx] if idx < len(names) else None
 
 
@@ -97,10 +118,12 @@ class RunScorer:
     address_category: dict[int, Any] = field(default_factory=dict)
     identifications: int = 0
     correct_identifications: int = 0
+    failed_goals: int = 0
+    remaps: int = 0
+    correct_remaps: int = 0
     detections: int = 0
     correct_detections: int = 0
     last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
-    cycles_since_new: int = 0
 
     def set_objects(self, objects: list[ObjectSpec]) -> None:
         """The world changed: keep scoring with its current objects (old ones stay known)."""
@@ -113,8 +136,16 @@ class RunScorer:
             return None
         return self.objects[name].category()
 
-    def true_object_for(self, action: int, roi: int, seen: str | None) -> str | None:
-        """The object under the window: seen now, or (map update) last seen for that ROI."""
+    def true_object_for(self, action: int, roi: int, seen: str | None,
+                        outcome: str = "") -> str | None:
+        """The object under the window: seen now, or (map update) last seen for that ROI.
+
+        A "lost" cycle looked at nothing: the entry's window is one of an earlier frame
+        (the place was forgotten because this frame showed nothing there), so scoring it
+        against this frame's labels would credit a look that never happened.
+        """
+        if outcome == "lost":
+            return None
         if action == Action.MAP_UPDATE:
             return self.last_true_of_roi.get(roi)
         self.last_true_of_roi[roi] = seen
@@ -122,7 +153,8 @@ class RunScorer:
 
     def add(self, row: CycleRow) -> None:
         """Score one cycle."""
-        self.cycles_since_new += 1
+        if row.converged is False:
+            self.failed_goals += 1
         if row.true_object is not None:
             self.visited.add(row.true_object)
         if row.action != Action.MAP_UPDATE:
@@ -134,12 +166,15 @@ class RunScorer:
                 self.correct_detections += 1
             if row.address >= 0:
                 self.address_category.setdefault(row.address, cat)
-            self.cycles_since_new = 0
-        elif row.outcome == "mapped":
-            self.identifications += 1
+        elif row.outcome in ("mapped", "remapped"):
             stored = self.address_category.get(row.address, None)
-            if cat is not None and stored == cat:
-                self.correct_identifications += 1
+            correct = int(cat is not None and stored == cat)
+            if row.outcome == "mapped":
+                self.identifications += 1
+                self.correct_identifications += correct
+            else:
+                self.remaps += 1
+                self.correct_remaps += correct
 
     def results(self) -> dict[str, Any]:
         """The ground-truth part of metrics.json."""
@@ -151,6 +186,8 @@ class RunScorer:
             "identification_precision": share(self.correct_identifications,
                                               self.identifications),
             "novelty_precision": share(self.correct_detections, self.detections),
+            "remap_precision": share(self.correct_remaps, self.remaps),
+            "failed_goals": self.failed_goals,
         }
 
 
@@ -180,6 +217,8 @@ class RunRecorder:
                 int(a): (tuple(c) if c is not None else None) for a, c in data.items()}
         self.rows: list[CycleRow] = []
         self.counters: dict[str, int] = {}
+        #: True when the run ended by the robot's completion rule (the attention's own).
+        self.complete = False
         self._fh: IO[str] = open(out_dir / "cycles.csv", "w", newline="")
         self._csv = csv.writer(self._fh)
         self._csv.writerow(CSV_COLUMNS)
@@ -202,9 +241,14 @@ class RunRecorder:
         out: dict[str, Any] = dict(self.meta)
         for key in ("cycles", "attention_shifts", "improvements", "visual_improvements",
                     "haptic_improvements", "positive_identifications", "new_objects",
-                    "map_updates"):
+                    "map_updates", "remaps"):
             out[key] = int(c.get(key, 0))
-        out.update(self.scorer.results())
+        scores = self.scorer.results()
+        out.update(scores)
+        out["complete"] = bool(self.complete)
+        # Judged on the ground truth after the run, whatever ended it.
+        out["every_object_visited"] = (
+            scores["objects_visited"] >= scores["objects_in_world"] > 0)
         out["wall_seconds"] = round(float(wall_seconds), 3)
         return out
 
@@ -223,6 +267,8 @@ def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
     actions = Counter(r.action for r in rows)
     stored = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "stored")
     mapped = sum(1 for r in rows if r.action == Action.MAP_UPDATE and r.outcome == "mapped")
+    remapped = sum(1 for r in rows
+                   if r.action == Action.MAP_UPDATE and r.outcome == "remapped")
     return {
         "cycles": len(rows),
         "attention_shifts": actions[Action.ATTENTION_SHIFT],
@@ -232,4 +278,5 @@ def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
         "positive_identifications": mapped,
         "new_objects": stored,
         "map_updates": actions[Action.MAP_UPDATE],
+        "remaps": remapped,
     }

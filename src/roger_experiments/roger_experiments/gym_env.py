@@ -18,10 +18,11 @@ whose action is the agent's (sections 4.2 and 5 of the paper).
   cycle is counted, reward 0, ``info["idle"]`` is True.
 - Episodes: ``reset(seed=...)`` rebuilds the world, the robot and (unless ``keep_memory``)
   an empty long-term memory; an episode is truncated after ``max_cycles`` steps and never
-  terminated (inspection has no final state: interest keeps attention moving, section 5).
-  ``info["roi_done"]`` marks the steps that end the episode of the ROI in focus (a map
-  update or a shift, ``fsm.is_terminal``), the ``terminated`` flag the attention node's
-  Q-learning passes to ``QTable.update``; :func:`run_qlearning` trains a QTable that way.
+  terminated (inspection has no final state: interest keeps attention moving, section 5),
+  which is also how the attention node's Q-learning treats every transition (no update is
+  terminal; docs/attention.md). ``info["roi_done"]`` marks the steps that leave the ROI in
+  focus (a shift) or settle it (a map update), for agents that want to know;
+  :func:`run_qlearning` trains a QTable as the attention node does.
 
 Registered as ``Roger/Attention-v0``: ``gymnasium.make("Roger/Attention-v0", max_cycles=60)``.
 """
@@ -40,7 +41,7 @@ import numpy as np
 from gymnasium import spaces
 
 from roger_attention.config import AttentionConfig
-from roger_attention.fsm import ACTIONS, STATES, State, is_terminal
+from roger_attention.fsm import ACTIONS, STATES, State
 from roger_attention.qlearning import QTable
 from roger_common.errors import ConfigError, RogerError
 from roger_common.types import FEATURE_DIM, Action, WorldSpec
@@ -194,8 +195,8 @@ class RogerAttentionEnv(gymnasium.Env):
         except _ActionRefused:
             record, illegal = None, True
         if record is not None:
-            reward, outcome, roi_done = float(record.reward), record.outcome, \
-                is_terminal(record.action)
+            reward, outcome = float(record.reward), record.outcome
+            roi_done = record.action in (Action.ATTENTION_SHIFT, Action.MAP_UPDATE)
             self._last = {"state_before": before.bits, "action": act, "bbox": record.bbox}
         elif not illegal:
             idle, outcome = True, "idle"
@@ -273,7 +274,7 @@ def run_qlearning(env: RogerAttentionEnv, table: QTable, episodes: int,
     """Train the repo's QTable against the environment, as the attention node does.
 
     Epsilon-greedy over the allowed actions; each cycle updates Q(s, a) with section 2's
-    rule, ``terminated`` being ``info["roi_done"]`` (per-ROI episodes, fsm.is_terminal).
+    rule, never terminal (the environment never terminates; truncation bootstraps).
 
     Args:
         env: The environment (its observation must be the plain state, features=False).
@@ -298,7 +299,7 @@ def run_qlearning(env: RogerAttentionEnv, table: QTable, episodes: int,
                                          epsilon)
             obs, reward, terminated, truncated, info = env.step(int(action))
             if not (info["illegal"] or info["idle"]):
-                tds.append(table.update(state, action, reward, STATES[obs], info["roi_done"],
+                tds.append(table.update(state, action, reward, STATES[obs], terminated,
                                         allowed_from_mask(info["action_mask"])))
             done = terminated or truncated
     return tds

@@ -29,6 +29,7 @@ def cumulative(rows: list[dict[str, str]], what: str) -> np.ndarray:
             "positive_identifications": a == "map_update" and o == "mapped",
             "new_objects": a == "map_update" and o == "stored",
             "map_updates": a == "map_update",
+            "remaps": a == "map_update" and o == "remapped",
         }[what]
     return np.cumsum([1 if hit(r) else 0 for r in rows])
 
@@ -78,28 +79,87 @@ def fig5(results: list[RunResult], path: Path) -> None:
     plt.close(fig)
 
 
-def td_curve(rows: list[dict[str, str]]) -> np.ndarray:
-    """Absolute TD error of every Q update of a run, in order."""
-    return np.array([abs(float(r["td_error"])) for r in rows if r.get("td_error")])
+#: Colours of Figure 6's points by the action of the update.
+TD_COLOURS: dict[str, str] = {"map_update": "tab:red", "attention_shift": "tab:blue",
+                              "visual_improvement": "tab:green",
+                              "haptic_improvement": "tab:olive"}
 
 
-def fig6(results: list[RunResult], path: Path, training: np.ndarray | None = None) -> None:
-    """|TD error| vs trials (Q updates), as the paper's Figure 6."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    if training is not None and training.size:
-        ax.plot(np.arange(1, training.size + 1), np.abs(training), color="tab:gray",
-                alpha=0.5, label="roger train")
-    for r in results:
-        if r.policy != "qlearning":
-            continue
-        td = td_curve(r.rows)
-        if td.size:
-            ax.plot(np.arange(1, td.size + 1), td, alpha=0.7, label=f"seed {r.seed}")
-    ax.set_xlabel("trials (Q-table updates)")
-    ax.set_ylabel("|temporal-difference error|")
-    ax.set_title("Q-learning convergence (paper Figure 6)")
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend()
+def td_convergence(td: np.ndarray, path: Path, run_starts: list[int] | tuple[int, ...] = (),
+                   window: int = 100, subtitle: str = "",
+                   actions: list[str] | None = None,
+                   q_values: dict[str, np.ndarray] | None = None) -> None:
+    """The paper's Figure 6: |TD error| per trial (Q update) and its moving average.
+
+    Panels: every trial's |TD error| (coloured by action when ``actions`` is given) with
+    the moving average over it; the moving average alone, on its own scale; and, with
+    ``q_values``, the Q-values after each trial (what the TD errors move).
+
+    Args:
+        td: TD errors in the order of the updates.
+        path: PNG to write.
+        run_starts: Trial indices where a new run (world, seed) begins: dotted lines.
+        window: Moving-average window (trials), clamped to the number of trials.
+        subtitle: What the trials were (shown under the title).
+        actions: The action of each update (``cycles.csv`` names), for the colours.
+        q_values: Label -> Q(s, a) after each trial (``train.q_history``).
+    """
+    a = np.abs(np.asarray(td, float))
+    rows = 3 if q_values else 2
+    fig, axes = plt.subplots(rows, 1, figsize=(8, 3.2 * rows), sharex=True,
+                             gridspec_kw={"height_ratios": [3, 2, 3][:rows]})
+    top, bottom = axes[0], axes[1]
+    if a.size:
+        x = np.arange(1, a.size + 1)
+        if actions is not None and len(actions) == a.size:
+            for name, colour in TD_COLOURS.items():
+                pick = np.array([act == name for act in actions])
+                if pick.any():
+                    top.plot(x[pick], a[pick], ".", color=colour, alpha=0.5, markersize=3,
+                             label=name.replace("_", " "))
+        else:
+            top.plot(x, a, ".", color="tab:gray", alpha=0.4, markersize=3, label="|TD error|")
+        w = max(1, min(window, a.size))
+        smooth = np.convolve(a, np.ones(w) / w, mode="valid")
+        for ax in (top, bottom):
+            ax.plot(np.arange(w, a.size + 1), smooth, color="black", lw=1.6,
+                    label=f"moving average of {w}" if ax is top else None)
+            for start in run_starts:
+                if start > 0:
+                    ax.axvline(start + 0.5, color="tab:gray", lw=0.6, ls=":")
+            ax.grid(alpha=0.3)
+        bottom.set_ylim(0.0, float(smooth.max()) * 1.15 + 1e-9)
+        top.legend(loc="upper right", fontsize=8)
+        if q_values:
+            ax = axes[2]
+            for label, values in q_values.items():
+                ax.plot(x, values, lw=1.2, label=label)
+            ax.set_ylabel("Q(s, a)")
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=7, ncol=3)
+    else:
+        top.text(0.5, 0.5, "no Q-learning updates", ha="center", transform=top.transAxes)
+    top.set_ylabel("|TD error|")
+    bottom.set_ylabel("moving average")
+    axes[-1].set_xlabel("trials (Q-table updates, in training order; dotted: a new run)")
+    top.set_title("Q-learning convergence (paper Figure 6)"
+                  + (f"\n{subtitle}" if subtitle else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def fig6(results: list[RunResult], path: Path) -> None:
+    """Figure 6 from the Q-learning runs' own updates (runs that learnt: a replayed one, a
+    training run); a comparison draws it from the training of its table instead
+    (``train.plot_training``)."""
+    rows = [row for r in results if r.policy == "qlearning" for row in r.rows
+            if row.get("td_error")]
+    starts, total = [], 0
+    for r in results:
+        if r.policy == "qlearning":
+            starts.append(total)
+            total += sum(1 for row in r.rows if row.get("td_error"))
+    td = np.array([float(row["td_error"]) for row in rows])
+    td_convergence(td, path, starts, subtitle="the updates of these runs",
+                   actions=[row["action"] for row in rows])

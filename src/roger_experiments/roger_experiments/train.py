@@ -1,43 +1,210 @@
-"""``roger train``: Q-learning of the attention policy over worlds and seeds.
+"""``roger train``: Q-learning of the attention policy on the robot, over worlds and seeds.
 
 One Q-table is carried from run to run (saved atomically after each). Each run is a
-whole attention session on one world with one seed, learning online, through the same
-core loop the graph runs (in process, without ROS, for speed) or through the real graph.
+whole attention session on one world with one seed, learning online (epsilon-greedy),
+through the same core loop the graph runs (in process, without ROS, for speed) or through
+the real graph. Figure 6 (the paper's "Q-learning convergence") is drawn from these real
+trials: the |TD error| of every Q update in order, with its moving average.
+
+The training worlds are random worlds (``roger_sim.worldgen``) with seeds of their own,
+written to ``OUT/worlds`` so that they can be looked at and reused, or world files; each
+one's fingerprint goes to ``train.json``, so that an evaluation can tell whether it runs
+on a world the table was trained on.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
 import time
 from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from roger_attention.fsm import STATES, possible_actions
 from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
+from roger_common.types import WorldSpec
+from roger_experiments.evaluation import ACTION_NAMES
+from roger_sim.world import load_world, world_to_dict
+from roger_sim.worldgen import random_world
+
+#: Window of the moving average of |TD error| in Figure 6 (Q updates).
+MOVING_AVERAGE = 100
+#: The Q-values Figure 6 follows: the choices of an undetermined entry, mapped or not.
+Q_SHOWN: tuple[tuple[str, str], ...] = (
+    ("000", "attention_shift"), ("000", "visual_improvement"), ("000", "haptic_improvement"),
+    ("001", "attention_shift"), ("001", "visual_improvement"), ("001", "haptic_improvement"))
+#: What train.json keeps of each training run's metrics.
+RUN_KEYS: tuple[str, ...] = ("cycles", "attention_shifts", "improvements",
+                             "positive_identifications", "new_objects", "remaps", "map_updates",
+                             "objects_visited", "objects_in_world")
+#: What ``train`` writes besides the runs: the table, every TD error, Figure 6, a summary.
+TRAIN_FILES: tuple[str, ...] = ("qtable.json", "td_errors.csv", "td_errors.png", "train.json")
+
+
+@dataclass(frozen=True)
+class RandomWorlds:
+    """Random training worlds: ``count`` worlds of seeds ``seed0``, ``seed0 + 1``, ...
+
+    The defaults draw from the family of the demo world (``worlds/inspection.yaml`` is
+    ``random_world(8, 3, seed=3, size_range=(0.08, 0.14))``) with other seeds, so that the
+    evaluation runs on a world of the same kind that training never saw.
+    """
+
+    count: int = 4
+    seed0: int = 100
+    n_categories: int = 8
+    copies: int = 3
+    size_range: tuple[float, float] = (0.08, 0.14)
+
+    def worlds(self) -> list[WorldSpec]:
+        """The worlds, in seed order."""
+        return [random_world(self.n_categories, self.copies, seed=self.seed0 + k,
+                             size_range=self.size_range) for k in range(self.count)]
+
+
+def world_fingerprint(world: WorldSpec) -> str:
+    """A digest of a world's objects and light (not its name or file): equal worlds, equal
+    fingerprints."""
+    d = world_to_dict(world)
+    data = json.dumps({"light": d["light"], "objects": d["objects"]}, sort_keys=True)
+    return hashlib.sha256(data.encode()).hexdigest()[:16]
+
+
+def write_worlds(worlds: list[WorldSpec], folder: Path) -> list[Path]:
+    """Write worlds as world files (``<name>.yaml``) into ``folder``; returns the paths."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for world in worlds:
+        path = folder / f"{world.name}.yaml"
+        atomic_write_bytes(path, yaml.safe_dump(world_to_dict(world), sort_keys=False).encode())
+        paths.append(path)
+    return paths
+
+
+def read_training(qtable: Path) -> dict[str, Any] | None:
+    """The ``train.json`` written beside a trained Q-table, or None when there is none."""
+    path = qtable.with_name("train.json")
+    if not path.exists():
+        return None
+    data: dict[str, Any] = json.loads(path.read_text())
+    return data
+
+
+@dataclass(frozen=True)
+class TrainingLog:
+    """Every Q update of a training, in order (``td_errors.csv``).
+
+    Attributes:
+        td: TD error of each update.
+        run_starts: Index of the first update of each run.
+        states: "nim" bits each update was made in ("" when not recorded).
+        actions: Its action (``cycles.csv`` names; "" when not recorded).
+    """
+
+    td: np.ndarray
+    run_starts: list[int]
+    states: list[str]
+    actions: list[str]
+
+    def q_history(self, alpha: float, pairs: tuple[tuple[str, str], ...] = Q_SHOWN,
+                  initial_q: float = 0.0) -> dict[str, np.ndarray]:
+        """Q(s, a) after each update, rebuilt from the TD errors (Q += alpha td, section
+        2): exact for a training that started from a table of ``initial_q``."""
+        out = {f"Q({s}, {a.replace('_improvement', '').replace('attention_', '')})":
+               np.full(self.td.size, initial_q) for s, a in pairs}
+        keys = dict(zip(pairs, out, strict=True))
+        value = dict.fromkeys(pairs, initial_q)
+        for k, (s, a, td) in enumerate(zip(self.states, self.actions, self.td, strict=True)):
+            if (s, a) in value:
+                value[(s, a)] += alpha * float(td)
+            for pair, label in keys.items():
+                out[label][k] = value[pair]
+        return out
+
+
+    def greedy_changes(self, alpha: float, since: float = 0.5) -> dict[str, int]:
+        """Per state, how often its greedy action (ties: the set of tied actions) changed
+        after the fraction ``since`` of the updates: 0 once the values have settled."""
+        pairs = tuple((s.bits, ACTION_NAMES[int(a)]) for s in STATES
+                      for a in possible_actions(s))
+        history = self.q_history(alpha, pairs)
+        labels = dict(zip(pairs, history, strict=True))
+        start = int(since * self.td.size)
+        out: dict[str, int] = {}
+        for state in STATES:
+            acts = [(state.bits, ACTION_NAMES[int(a)]) for a in possible_actions(state)]
+            values = np.stack([history[labels[pair]][start:] for pair in acts])
+            best = values.max(axis=0)
+            greedy = [frozenset(k for k in range(len(acts)) if values[k, t] == best[t])
+                      for t in range(values.shape[1])]
+            out[state.bits] = sum(1 for a, b in zip(greedy, greedy[1:]) if a != b)
+        return out
+
+
+def read_td_errors(path: Path) -> TrainingLog:
+    """The updates of a ``td_errors.csv``, in order."""
+    tds: list[float] = []
+    starts: list[int] = []
+    states: list[str] = []
+    actions: list[str] = []
+    last_run = None
+    with open(path, newline="") as fh:
+        for row in csv.DictReader(fh):
+            if row["run"] != last_run:
+                starts.append(len(tds))
+                last_run = row["run"]
+            tds.append(float(row["td_error"]))
+            states.append(row.get("state") or "")
+            actions.append(row.get("action") or "")
+    return TrainingLog(np.array(tds), starts, states, actions)
+
+
+def convergence(td: np.ndarray, window: int = MOVING_AVERAGE) -> dict[str, Any]:
+    """Numbers that say whether |TD error| converged: means over the first and last tenth,
+    and the moving average at a few points of training."""
+    a = np.abs(np.asarray(td, float))
+    if not a.size:
+        return {"updates": 0}
+    tenth = max(1, a.size // 10)
+    w = max(1, min(window, a.size))
+    smooth = np.convolve(a, np.ones(w) / w, mode="valid")
+    points = {f"{int(q * 100)}%": float(smooth[min(len(smooth) - 1, int(q * len(smooth)))])
+              for q in (0.0, 0.25, 0.5, 0.75, 1.0)}
+    return {"updates": int(a.size), "mean_abs_td_first_10pct": float(a[:tenth].mean()),
+            "mean_abs_td_last_10pct": float(a[-tenth:].mean()),
+            "moving_average_window": w, "moving_average_at": points}
 
 
 def train(worlds: list[Path], seeds: list[int], out: Path,
           run_one: Callable[[Path, int, Path, Path], dict[str, Any]],
-          progress: Callable[[str], None] = print) -> dict[str, Any]:
+          progress: Callable[[str], None] = print,
+          describe: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train one Q-table over every (world, seed) pair, in that order.
 
     Args:
         worlds: World files.
         seeds: Seeds; every world is run with every seed.
-        out: Output folder: qtable.json, td_errors.csv, td_errors.png, runs/.
+        out: Output folder: qtable.json, td_errors.csv, td_errors.png (Figure 6),
+            train.json, runs/.
         run_one: ``run_one(world, seed, qtable_path, run_dir) -> metrics``; learns from and
             saves to ``qtable_path``.
+        describe: How the worlds were made (e.g. the RandomWorlds), kept in train.json.
 
     Returns:
-        A summary: runs, TD errors, the final table's greedy action per state.
+        The summary written to train.json: runs, worlds and fingerprints, convergence of
+        |TD|, the final table and its greedy action per state.
     """
     out.mkdir(parents=True, exist_ok=True)
     qtable = out / "qtable.json"
-    td_all: list[tuple[int, str, int, float]] = []
+    rows: list[tuple[int, str, int, float, str, str]] = []
+    runs: list[dict[str, Any]] = []
     total = len(worlds) * len(seeds)
     t0 = time.monotonic()
     k = 0
@@ -46,43 +213,51 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
             k += 1
             run_dir = out / "runs" / f"{world.stem}_seed{seed}"
             progress(f"[{k}/{total}] {world.name}, seed {seed}")
-            run_one(world, seed, qtable, run_dir)
+            metrics = run_one(world, seed, qtable, run_dir)
+            runs.append({"world": world.stem, "seed": seed,
+                         **{key: metrics.get(key) for key in RUN_KEYS}})
             with open(run_dir / "cycles.csv", newline="") as fh:
                 for row in csv.DictReader(fh):
                     if row["td_error"]:
-                        td_all.append((k, world.stem, seed, float(row["td_error"])))
-    lines = ["trial,run,world,seed,td_error"] + [
-        f"{i + 1},{run},{w},{s},{td:.6g}" for i, (run, w, s, td) in enumerate(td_all)]
+                        rows.append((k, world.stem, seed, float(row["td_error"]),
+                                     row["state"], row["action"]))
+    lines = ["trial,run,world,seed,td_error,state,action"] + [
+        f"{i + 1},{run},{w},{s},{td:.6g},{st},{a}"
+        for i, (run, w, s, td, st, a) in enumerate(rows)]
     atomic_write_bytes(out / "td_errors.csv", ("\n".join(lines) + "\n").encode())
-    td = np.array([t[3] for t in td_all])
-    _plot(td, out / "td_errors.png")
+    log = read_td_errors(out / "td_errors.csv")
     table = QTable.load(qtable)
+    plot_training(log, out / "td_errors.png", table.config.alpha,
+                  f"{total} training runs on {len(worlds)} worlds, {len(seeds)} seeds each")
+    td = log.td
     greedy = {s.bits: [a.name.lower() for a in table.greedy_actions(s, possible_actions(s))]
               for s in STATES}
-    return {"runs": total, "updates": int(td.size), "qtable": str(qtable),
-            "mean_abs_td_first_10pct": float(np.abs(td[: max(1, td.size // 10)]).mean())
-            if td.size else None,
-            "mean_abs_td_last_10pct": float(np.abs(td[-max(1, td.size // 10):]).mean())
-            if td.size else None,
-            "greedy": greedy, "wall_seconds": round(time.monotonic() - t0, 1)}
+    summary = {
+        "runs": total, "seeds": seeds,
+        "worlds": [{"file": str(w), "name": load_world(w).name,
+                    "fingerprint": world_fingerprint(load_world(w))} for w in worlds],
+        "made_by": describe or {}, "qtable": str(qtable), "run_metrics": runs,
+        "alpha": table.config.alpha, "gamma": table.config.gamma,
+        "epsilon": table.config.epsilon,
+        **convergence(td),
+        "greedy_changes_second_half": log.greedy_changes(table.config.alpha)
+        if all(log.states) else None,
+        "q": {s.bits: {a.name.lower(): round(table.value(s, a), 4) for a in possible_actions(s)}
+              for s in STATES},
+        "greedy": greedy, "wall_seconds": round(time.monotonic() - t0, 1)}
+    atomic_write_bytes(out / "train.json", (json.dumps(summary, indent=2) + "\n").encode())
+    return summary
 
 
-def _plot(td: np.ndarray, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot_training(log: TrainingLog, path: Path, alpha: float, subtitle: str) -> None:
+    """Figure 6 of a training: |TD error| per trial, its moving average, the Q-values."""
+    from roger_experiments import plots
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    if td.size:
-        x = np.arange(1, td.size + 1)
-        ax.plot(x, np.abs(td), color="tab:gray", alpha=0.4, lw=0.8, label="|TD error|")
-        w = max(1, td.size // 50)
-        smooth = np.convolve(np.abs(td), np.ones(w) / w, mode="valid")
-        ax.plot(np.arange(w, td.size + 1), smooth, color="tab:blue", label=f"mean of {w}")
-        ax.legend()
-    ax.set_xlabel("trials (Q-table updates)")
-    ax.set_ylabel("|temporal-difference error|")
-    ax.set_title("Q-learning convergence (paper Figure 6)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    plots.td_convergence(log.td, path, log.run_starts, MOVING_AVERAGE, subtitle,
+                         actions=log.actions,
+                         q_values=log.q_history(alpha) if all(log.states) else None)
+
+
+def describe_random(spec: RandomWorlds) -> dict[str, Any]:
+    """A RandomWorlds as JSON-ready data for train.json."""
+    return {"generator": "roger_sim.worldgen.random_world", **asdict(spec)}

@@ -42,7 +42,8 @@ _SEPARATOR = (96, 96, 96)
 #: The Table 2 counters shown, with their short labels.
 _COUNTER_LABELS: tuple[tuple[str, str], ...] = (
     ("cycles", "cycle"), ("attention_shifts", "shifts"), ("improvements", "improv"),
-    ("positive_identifications", "ids"), ("new_objects", "new"), ("map_updates", "maps"))
+    ("positive_identifications", "ids"), ("new_objects", "new"), ("remaps", "remaps"),
+    ("map_updates", "maps"))
 
 
 def retina_rgb(img: np.ndarray) -> np.ndarray:

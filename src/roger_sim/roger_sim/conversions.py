@@ -39,10 +39,11 @@ def controller_status_msg(states: dict[str, ControllerState], stamp: float) -> C
 
 
 def convergence_msg(report: ControllerReport, action: Action, stamp: float) -> ConvergenceEvent:
-    """A finished goal as a ConvergenceEvent."""
-    failed = any(s == ControllerState.FAILED for s in report.states.values())
+    """A finished goal as a ConvergenceEvent (``converged``: none of the controllers the
+    goal drove failed)."""
     return ConvergenceEvent(
-        header=header(stamp), goal_id=report.goal_id, action=int(action), converged=not failed,
+        header=header(stamp), goal_id=report.goal_id, action=int(action),
+        converged=report.converged,
         controllers=list(report.states), status=[int(s) for s in report.states.values()],
         duration=float(report.sim_time), physics_steps=int(report.physics_steps))
 

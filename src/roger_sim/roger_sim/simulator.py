@@ -286,8 +286,10 @@ class Simulator:
         improvement: an arm touches, lifts and weighs what is at ``goal.target``.
 
         Returns:
-            The five statuses, the simulated time at the end and the physics steps this
-            goal took. Controllers still transient at ``goal_timeout_s`` are FAILED.
+            The five statuses, the controllers this goal drove, the simulated time at the
+            end and the physics steps it took. Controllers still transient at
+            ``goal_timeout_s`` are FAILED. A haptic improvement on a target beyond the
+            arm's reach fails at once (the arm does not move).
 
         Raises:
             ValueError: For MAP_UPDATE (no controller moves) or an unknown action.
@@ -304,13 +306,16 @@ class Simulator:
         routine: HapticRoutine | None = None
         self._last_goal_haptic = action == Action.HAPTIC_IMPROVEMENT
         if action == Action.ATTENTION_SHIFT:
+            driven: tuple[str, ...] = ("neck", "left_eye", "right_eye")
             self._attention_shift(target)
         elif action == Action.VISUAL_IMPROVEMENT:
+            driven = ("left_eye", "right_eye")
             self._visual_improvement(target)
         else:
             arm = {0: "left_arm", 1: "right_arm"}.get(goal.arm)
             if arm is None:
                 arm = "left_arm" if target[1] >= 0.0 else "right_arm"
+            driven = (arm,)
             objects = {body: name for name, body in self._bodies.items()}
             routine = HapticRoutine(self.client, self.robot, arm, self._servos[arm], target,
                                     objects, cfg, self._weight_rng)
@@ -332,7 +337,8 @@ class Simulator:
             if servo.state == ControllerState.TRANSIENT:
                 servo.fail()
         return ControllerReport(goal_id=goal.goal_id, states=self.controller_states(),
-                                sim_time=self.sim_time, physics_steps=self._steps - start)
+                                sim_time=self.sim_time, physics_steps=self._steps - start,
+                                driven=driven)
 
     def _attention_shift(self, target: tuple[float, float, float]) -> None:
         angles = fixation_angles(target)
@@ -432,7 +438,7 @@ class Simulator:
         """Add an object; it shows up in the next rendered frame.
 
         Raises:
-            WorldFileError: Duplicate name, invalid field, overlap, out of reach or view.
+            WorldFileError: Duplicate name, invalid field, overlap, or out of view.
         """
         if spec.name in self._bodies:
             raise WorldFileError("add_object", f"object ({spec.name}).name",
@@ -458,7 +464,7 @@ class Simulator:
 
         Raises:
             KeyError: No object has that name.
-            WorldFileError: The new place overlaps another object or is out of reach/view.
+            WorldFileError: The new place overlaps another object or is out of view.
         """
         if name not in self._bodies:
             raise KeyError(f"move_object: no object named {name!r}; "

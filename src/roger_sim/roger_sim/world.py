@@ -82,8 +82,9 @@ def _vector(source: str, where: str, value: Any, n: int) -> tuple[float, ...]:
 def object_from_dict(d: dict, source: str, where: str) -> ObjectSpec:
     """Validate one object entry and build its :class:`ObjectSpec`.
 
-    Checks each field on its own (type, allowed values, ranges) and that the object
-    can be seen and reached; overlaps with other objects are checked by ``parse_world``.
+    Checks each field on its own (type, allowed values, ranges) and that the object can
+    be seen; it may stand beyond the arms' reach (``in_reach``), where a haptic improvement
+    fails. Overlaps with other objects are checked by ``parse_world``.
 
     Args:
         d: The entry as loaded from YAML.
@@ -133,14 +134,20 @@ def object_from_dict(d: dict, source: str, where: str) -> ObjectSpec:
                              f"({x:g}, {y:g}) is out of view: need x >= {MIN_X:g} m, a "
                              f"bearing within {math.degrees(MAX_BEARING):g} deg and a "
                              f"distance <= {MAX_DISTANCE:g} m")
-    reach = min(math.hypot(x - sx, y - sy)
-                for sx, sy in (shoulder_xy(arm) for arm in CONTROLLERS[3:]))
-    if reach > REACH:
-        raise WorldFileError(source, f"{label}.position",
-                             f"({x:g}, {y:g}) is out of reach: {reach:.2f} m from the nearest "
-                             f"shoulder, arms reach {REACH:g} m")
     return ObjectSpec(name=name, shape=shape, position=(x, y), size=size,
                       intensity=intensity, weight=weight, yaw=yaw, texture=texture)
+
+
+def reach_distance(x: float, y: float) -> float:
+    """Horizontal distance (m) from the nearest shoulder to the point (x, y)."""
+    return min(math.hypot(x - sx, y - sy)
+               for sx, sy in (shoulder_xy(arm) for arm in CONTROLLERS[3:]))
+
+
+def in_reach(x: float, y: float) -> bool:
+    """True when a hand can work over (x, y): within ``REACH`` of a shoulder. An object in
+    view beyond it can be seen, identified and stored, but not touched or weighed."""
+    return reach_distance(x, y) <= REACH
 
 
 def check_overlap(objects: tuple[ObjectSpec, ...] | list[ObjectSpec], new: ObjectSpec,

@@ -1,8 +1,9 @@
 """Random worlds that pass every world-file rule: for tests on unseen worlds and experiments.
 
 Objects are drawn as categories (shape, size, intensity, weight, texture), each placed a
-few times, at random positions in reach and view, without overlap. Seeded: the same
-arguments give the same world.
+few times, at random positions in reach and view, without overlap; optionally a few more
+in view beyond the arms' reach. Seeded: the same arguments give the same world (and the
+objects in reach do not depend on ``out_of_reach``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from roger_common.types import ObjectSpec, WorldSpec
 from roger_sim.world import (
     SHAPES,
     footprint_radius,
+    in_reach,
     object_from_dict,
     parse_world,
     world_to_dict,
@@ -24,8 +26,9 @@ from roger_sim.world import (
 
 def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[float, float] =
                  (0.10, 0.18), textures: tuple[str, ...] = ("plain",), name: str = "",
-                 min_gap: float = 0.04, max_tries: int = 20000) -> WorldSpec:
-    """A world of ``n_categories`` categories, each placed ``copies`` times.
+                 min_gap: float = 0.04, max_tries: int = 20000,
+                 out_of_reach: int = 0) -> WorldSpec:
+    """A world of ``n_categories`` categories, each placed ``copies`` times in reach.
 
     Grey levels are drawn from 50-130, the range of the paper's Table 1 (59-99) widened a
     little: brighter surfaces saturate the intensity features (docs/perception.md).
@@ -40,6 +43,9 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
         min_gap: Free space kept between two objects' footprints (metres), so that they do
             not touch in the retinas.
         max_tries: Placement attempts before giving up.
+        out_of_reach: Objects placed after those, in view but beyond the arms' reach
+            (1.25-1.7 m away, bearing within 50 degrees), one of each category in turn,
+            named ``c<category>_far<k>``.
 
     Raises:
         WorldFileError: The objects do not fit in the workspace.
@@ -60,33 +66,42 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
     placed: list[ObjectSpec] = []
     source = f"<random world {name}>"
     tries = 0
-    for c, (shape, size, intensity, weight, texture) in enumerate(categories):
-        for k in range(copies):
-            while True:
-                tries += 1
-                if tries > max_tries:
-                    raise WorldFileError(source, "", f"could not place {n_categories * copies} "
-                                                     "objects without overlap")
+    near = [(c, f"c{c:02d}_{k}", False) for c in range(n_categories) for k in range(copies)]
+    far = [(k % n_categories, f"c{k % n_categories:02d}_far{k // n_categories}", True)
+           for k in range(out_of_reach)]
+    for c, obj_name, beyond in near + far:
+        shape, size, intensity, weight, texture = categories[c]
+        while True:
+            tries += 1
+            if tries > max_tries:
+                raise WorldFileError(source, "", f"could not place {len(near) + len(far)} "
+                                                 "objects without overlap")
+            if beyond:
+                r = float(rng.uniform(1.25, 1.7))
+                bearing = float(rng.uniform(-math.radians(50), math.radians(50)))
+            else:
                 r = float(rng.uniform(0.45, 1.1))
                 bearing = float(rng.uniform(-math.radians(70), math.radians(70)))
-                d = {"name": f"c{c:02d}_{k}", "shape": shape,
-                     "position": [round(r * math.cos(bearing), 3),
-                                  round(r * math.sin(bearing), 3)],
-                     "yaw": round(float(rng.uniform(0, math.pi)), 2), "size": size,
-                     "intensity": intensity, "weight": weight, "texture": texture}
-                try:
-                    spec = object_from_dict(d, source, f"objects[{len(placed)}]")
-                    if any(math.dist(o.position, spec.position)
-                           < footprint_radius(o.shape, o.size)
-                           + footprint_radius(spec.shape, spec.size) + min_gap
-                           for o in placed):
-                        continue
-                    parse_world({"name": name, "objects":
-                                 [world_to_dict_obj(o) for o in placed] + [d]}, source)
-                except WorldFileError:
+            d = {"name": obj_name, "shape": shape,
+                 "position": [round(r * math.cos(bearing), 3),
+                              round(r * math.sin(bearing), 3)],
+                 "yaw": round(float(rng.uniform(0, math.pi)), 2), "size": size,
+                 "intensity": intensity, "weight": weight, "texture": texture}
+            try:
+                spec = object_from_dict(d, source, f"objects[{len(placed)}]")
+                if in_reach(*spec.position) == beyond:
                     continue
-                placed.append(spec)
-                break
+                if any(math.dist(o.position, spec.position)
+                       < footprint_radius(o.shape, o.size)
+                       + footprint_radius(spec.shape, spec.size) + min_gap
+                       for o in placed):
+                    continue
+                parse_world({"name": name, "objects":
+                             [world_to_dict_obj(o) for o in placed] + [d]}, source)
+            except WorldFileError:
+                continue
+            placed.append(spec)
+            break
     return parse_world({"name": name, "objects": [world_to_dict_obj(o) for o in placed]},
                        source)
 
