@@ -179,7 +179,7 @@ def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
     memory = AssociativeMemory(seed=3)
     memory.store(x, ALL_KNOWN)
     q = x.copy()
-    q[WEIGHT_INDEX] += 1.5 * CONFIG.veto[WEIGHT_INDEX]
+    q[WEIGHT_INDEX] += 1.1 * CONFIG.veto[WEIGHT_INDEX]
     decision = memory.decide(q, ALL_KNOWN, final_trial=True)
     assert decision.winner == 0 and decision.vetoed
     assert decision.distance < CONFIG.identify_distance
@@ -291,8 +291,12 @@ def test_handle_store_and_match() -> None:
 def test_table1_objects_with_their_weights() -> None:
     """The paper's Table 1 (perceived I, D, W of objects 01-04, the rest equal): 01, 02,
     04 are each identified as themselves; 03 (grey 69 next to 02's 79) is within the
-    robot's category-level intensity spread of 02, so only its weight (0.47 vs 0.51,
-    beyond the veto) makes it new; with W unknown vision cannot exclude 02 or 04."""
+    robot's category-level intensity spread of 02, so only its weight can make it new.
+    The paper's 0.47 vs 0.51 is not enough on the robot's measured noise: 0.04 is 2.7
+    sigma of the difference of two weighings and inside the calibrated veto (0.0403), so
+    it is identified as 02 (a paper figure that does not hold here, docs/memory.md); a
+    weight lighter than 02's by 1.25 vetoes is new. With W unknown vision cannot exclude
+    02 or 04."""
     def table1(intensity: float, size: float, weight: float) -> np.ndarray:
         x = np.full(FEATURE_DIM, 0.3, np.float32)
         x[[FEATURE_NAMES.index(n) for n in ("I1", "I2", "I3")]] = intensity
@@ -308,7 +312,10 @@ def test_table1_objects_with_their_weights() -> None:
     for address, i in enumerate((0, 1, 3)):
         result = memory.match(objects[i], ALL_KNOWN)
         assert (result.outcome, result.address) == (MatchOutcome.IDENTIFIED, address)
-    assert memory.match(objects[2], ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
+    lighter = table1(0.56, 0.44, 0.51 - 1.25 * CONFIG.veto[WEIGHT_INDEX])
+    assert memory.match(lighter, ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
+    paper_03 = memory.match(objects[2], ALL_KNOWN, final_trial=True)
+    assert (paper_03.outcome, paper_03.address) == (MatchOutcome.IDENTIFIED, 1)
     assert memory.match(objects[2], W_UNKNOWN).outcome == MatchOutcome.UNDETERMINED
     assert memory.match(objects[2], W_UNKNOWN, final_trial=True).address in (1, 2)
 

@@ -93,13 +93,18 @@ def test_an_untrained_network_of_the_same_shape_changes_most_decisions() -> None
 @pytest.mark.parametrize("world", ["two_rows", "twins", "categories", "inspection"])
 def test_recorded_foci_are_identified_as_their_own_category(world: str) -> None:
     """Replayed as the straightforward policy takes them, the recorded foci of each run
-    are identified as the category stored from them, never as another one. Measured
-    exception: in categories.yaml a prism on the 1.0 m ring is out of the arms' reach, so
-    its final trial has no weight and decides on vision, which takes it for the cylinder
-    or the sphere (4 slips in the Q-learning run)."""
+    are identified as the category stored from them, at the issue's identification
+    precision (0.95) or better: on inspection 1 of 41 is another category (straightforward
+    run), 0 of 38 (Q-learning). Measured exception: in categories.yaml a prism on the
+    1.0 m ring is out of the arms' reach, so its final trial has no weight and decides on
+    vision, which takes it for the cylinder or the sphere (4 slips in the Q-learning
+    run)."""
     scores, _ = _replayed(world)
     wrong = sum(s.identifications - s.correct_identifications for s in scores)
-    assert wrong <= (4 if world == "categories" else 0)
+    if world == "categories":
+        assert wrong <= 4
+    else:
+        assert all(s.correct_identifications >= 0.95 * s.identifications for s in scores)
     assert all(s.identifications > 10 for s in scores)
 
 
@@ -113,7 +118,9 @@ def test_weight_twins_are_stored_once_each_and_never_confused() -> None:
         assert s.false_identified == 0
     for memory in memories:
         weights = sorted(float(memory.exemplars(a)[0, WEIGHT_INDEX]) for a in range(4))
-        assert np.all(np.diff(weights) > 0.08)  # 0.15, 0.25, 0.45, 0.55: all four weights
+        # 0.15, 0.25, 0.45, 0.55: all four weights, each within 0.04 (under half the 0.1
+        # between neighbours) of a different one
+        assert np.abs(np.array(weights) - [0.15, 0.25, 0.45, 0.55]).max() < 0.04, weights
         assert memory.stats.coverage_holds > 0  # vision alone was never enough
 
 

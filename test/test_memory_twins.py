@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import WORLDS
 
@@ -55,4 +56,7 @@ def test_weight_twins_are_learned_once_each_and_told_apart(policy: str,
     assert all(req.known[WEIGHT_INDEX] for req, _ in identified if not req.final_trial)
     # The four stored addresses hold the four weights (0.25, 0.55 box; 0.15, 0.45 can).
     weights = sorted(float(memory.exemplars(a)[-1, WEIGHT_INDEX]) for a in range(memory.size))
-    assert len(weights) == 4 and min(b - a for a, b in zip(weights, weights[1:])) > 0.08
+    # Each within 0.04 (under half the 0.1 between neighbours; the robot's W scatter is
+    # ~0.01) of a different one of them.
+    assert len(weights) == 4
+    assert np.abs(np.array(weights) - [0.15, 0.25, 0.45, 0.55]).max() < 0.04, weights
