@@ -207,7 +207,9 @@ def test_complete_when_nothing_new_for_long_enough_and_nothing_unmapped() -> Non
     assert d.ctl.complete(4) and not d.ctl.complete(5)
     world.objects["d"] = Obj((0.8, 0.0, 0.05), 0.8, 0.3, 0.1)
     d.ctl.observe(world.rois(), d.now, world.visible)
-    assert not d.ctl.complete(4)                # an unmapped entry: not complete
+    assert d.ctl.complete(4)                    # one look: a candidate, not yet an entry
+    d.ctl.observe(world.rois(), d.now + 0.5, world.visible)
+    assert not d.ctl.complete(4)                # a second agreeing look: an unmapped entry
     assert not make_ctl().complete(0)           # nothing seen yet: not complete
 
 
