@@ -12,7 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import WORLDS, child_pids
+import yaml
+from conftest import REPO, WORLDS, child_pids
 
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
 CONTRACT_COLUMNS = ["cycle", "state", "action", "reward", "td_error", "roi", "true_object",
@@ -167,3 +168,35 @@ def test_an_object_beyond_reach_is_handled_end_to_end(no_leaks, tmp_path, ros_do
                for s in arm_status.values())
     statuses = [m for _, m, _ in read_messages(out / "bag", ("/roger/controller_status",))]
     assert any(ControllerState.FAILED in m.status for m in statuses)
+
+
+def test_params_file_reaches_every_node_and_the_flags_win(no_leaks, tmp_path, ros_domain):
+    """The documented example runs as is; a copy that changes a parameter changes what the
+    robot does; roger run's own options win over it; a misspelt key is one line, exit 2."""
+    example = yaml.safe_load((REPO / "docs" / "params_example.yaml").read_text())
+    example["roger_attention"]["ros__parameters"]["visual_trials"] = 0   # never a visual look
+    example["roger_attention"]["ros__parameters"]["policy"] = "qlearning"  # --policy wins
+    edited = tmp_path / "params.yaml"
+    edited.write_text(yaml.safe_dump(example))
+    for params, cycles in ((REPO / "docs" / "params_example.yaml", 4), (edited, 8)):
+        out = tmp_path / params.stem
+        proc = subprocess.run(
+            [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--cycles", str(cycles),
+             "--params-file", str(params), "--out", str(out), "--quiet",
+             "--domain-id", str(ros_domain), "--timeout", "200"],
+            capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["cycles"] == cycles and metrics["policy"] == "straightforward"
+        with open(out / "cycles.csv") as fh:
+            actions = [r["action"] for r in csv.DictReader(fh)]
+        if params == edited:
+            assert "visual_improvement" not in actions and "haptic_improvement" in actions
+    example["roger_sim"]["ros__parameters"]["image_sise"] = 64
+    edited.write_text(yaml.safe_dump(example))
+    proc = subprocess.run(
+        [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--cycles", "2",
+         "--params-file", str(edited), "--out", str(tmp_path / "bad"), "--quiet",
+         "--domain-id", str(ros_domain)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "roger_sim.ros__parameters.image_sise" in proc.stderr and "Traceback" not in proc.stderr

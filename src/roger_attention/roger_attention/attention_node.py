@@ -28,6 +28,7 @@ from roger_attention.controller import AttentionController
 from roger_attention.policies import make_policy
 from roger_common import conversions as common
 from roger_common.atomic import sync_file
+from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, declare_config, spin_node
 from roger_common.types import CameraModel, EyePose, MatchResult, Roi
@@ -51,7 +52,9 @@ class AttentionNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_attention", **kwargs)
-        self.config = declare_config(self, AttentionConfig)
+        self.config = declare_config(
+            self, AttentionConfig,
+            apply=lambda new: self.ctl.reconfigure(take_live_fields(self.ctl.config, new)))
         nc = declare_config(self, AttentionNodeConfig,
                             apply=lambda new: setattr(self.session, "config", new))
         qtable = Path(nc.qtable_file) if nc.qtable_file else None

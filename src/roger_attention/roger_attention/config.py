@@ -76,7 +76,7 @@ class QLearningConfig:
 
     alpha: float = 0.5
     gamma: float = 0.1
-    epsilon: float = 0.1
+    epsilon: float = field(default=0.1, metadata={"live": True})
     initial_q: float = 0.0
 
     def __post_init__(self) -> None:
@@ -120,7 +120,7 @@ class SpatialMapConfig:
     association_radius: float = 0.15
     moved_threshold: float = 0.12
     vanish_frames: int = 3
-    interest_rate: float = 0.1
+    interest_rate: float = field(default=0.1, metadata={"live": True})
     settle_observations: int = 2
     jitter_quantile: float = 0.9
     jitter_prior: float = 0.05

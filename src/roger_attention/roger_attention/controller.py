@@ -43,8 +43,9 @@ from roger_attention.fsm import (
     reward,
     transition,
 )
-from roger_attention.policies import Policy
+from roger_attention.policies import Policy, QLearningPolicy
 from roger_attention.spatial_map import MapChanges, MapEntry, Position, SpatialMap, VisibleFn
+from roger_common.configdoc import check_live_change
 from roger_common.geometry import as_point, in_view
 from roger_common.types import (
     Action,
@@ -260,6 +261,20 @@ class AttentionController:
         return lambda p: in_view(camera, pose, p, margin)
 
     # -- resuming after a restart -----------------------------------------------------------
+    def reconfigure(self, config: AttentionConfig) -> None:
+        """Take a new configuration that differs only in fields marked live (the Q-learning
+        exploration ``qlearning.epsilon``, the map's ``spatial_map.interest_rate``); the
+        next cycle uses it.
+
+        Raises:
+            ValueError: Another field differs (restart to change it).
+        """
+        check_live_change(self.config, config)
+        self.config = config
+        self.spatial_map.config = config.spatial_map
+        if isinstance(self.policy, QLearningPolicy):
+            self.policy.epsilon = config.qlearning.epsilon
+
     def export_state(self) -> dict[str, Any]:
         """What a restarted controller needs to go on (JSON-ready): counters, next ids,
         the policy's learnt state and the mapped places."""

@@ -41,7 +41,12 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
                    help="long-term memory file (default OUT/memory.pt); loaded if it exists")
     p.add_argument("--no-learn", action="store_true",
                    help="run the Q-table without updating it")
-    p.add_argument("--image-size", type=int, default=128, help="retina size in pixels")
+    p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
+                   help="a standard ROS 2 parameters file handed to every node (e.g. a copy "
+                        "of docs/params_example.yaml); roger run's own options (world, "
+                        "policy, seed, cycles, files) and the flags below win over it")
+    p.add_argument("--image-size", type=int, default=None,
+                   help="retina size in pixels (default: the params file's, else 128)")
     p.add_argument("--realtime", action="store_true", help="pace the simulated clock to wall time")
     p.add_argument("--gui", action="store_true", help="open pybullet's window (needs a display)")
     p.add_argument("--domain-id", type=int, default=None,
@@ -63,7 +68,8 @@ def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         world=args.world, out=args.out or Path("runs") / args.policy, policy=args.policy,
         cycles=cycles, until_complete=args.until_complete, stable_cycles=args.stable_cycles,
         seed=args.seed, qtable=args.qtable, memory=args.memory, learn=not args.no_learn,
-        image_size=args.image_size, realtime=args.realtime, gui=args.gui,
+        image_size=args.image_size, realtime=args.realtime or None, gui=args.gui or None,
+        params_file=args.params_file,
         domain_id=args.domain_id, timeout_s=args.timeout, progress=not args.quiet,
         view=args.view, record=args.record)
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from roger_attention.config import AttentionConfig, AttentionNodeConfig
 from roger_bringup.view_node import ViewNodeConfig
-from roger_common.configdoc import config_fields, field_description
+from roger_common.configdoc import config_fields, field_description, field_range, live_fields
 from roger_memory.config import MemoryConfig, MemoryNodeConfig
 from roger_perception.config import PerceptionConfig
 from roger_sim.config import SimConfig, SimNodeConfig
@@ -56,13 +56,28 @@ class ParamRow:
     default: Any
     meaning: str
     source: str
+    range: tuple[float, float] | None = None
+    live: bool = False
 
 
 def config_rows(node: str, cls: type) -> list[ParamRow]:
     """The parameters ``declare_config`` makes of a config dataclass, groups included."""
     return [ParamRow(node, name, list(f.default) if isinstance(f.default, tuple) else f.default,
-                     field_description(f.owner, f.path[-1]), f.owner.__name__)
+                     field_description(f.owner, f.path[-1]), f.owner.__name__,
+                     field_range(cls, f.path), f.path[-1] in live_fields(f.owner))
             for name, f in config_fields(cls).items()]
+
+
+def format_range(bounds: tuple[float, float] | None) -> str:
+    """A range as the table shows it: ``[0, 1]``, ``[1, inf)``; empty for no range."""
+    if bounds is None:
+        return ""
+    lo, hi = bounds
+
+    def num(v: float) -> str:
+        return "inf" if v == float("inf") else "-inf" if v == float("-inf") else f"{v:g}"
+    return ("(" if lo == float("-inf") else "[") + f"{num(lo)}, {num(hi)}" + (
+        ")" if hi == float("inf") else "]")
 
 
 def parameter_table() -> list[ParamRow]:
@@ -98,17 +113,24 @@ def parameters_markdown(rows: list[ParamRow] | None = None) -> str:
          "from the config dataclasses (`config.py` of each package) and the parameters the "
          "nodes declare themselves; `test/test_paramdoc.py` keeps it up to date. Set them "
          "with `-p name:=value` or a parameter file "
-         "(`--ros-args --params-file docs/params_example.yaml`, which lists every default). "
+         "(`--ros-args --params-file docs/params_example.yaml`, which lists every default; "
+         "`roger run --params-file FILE` hands one to every node). "
          "Every node also has rclpy's `use_sim_time` (default false; `roger run` sets it "
          "true) and `start_type_description_service` (default true). "
-         "Nested names such as `qlearning.alpha` are nested keys in a parameter file."),
+         "Nested names such as `qlearning.alpha` are nested keys in a parameter file. "
+         "`range` is what the config's own validation accepts (a bound it excludes, such as "
+         "> 0, is shown closed: ROS ranges are; the value itself is still refused); `ros2 "
+         "param describe` shows the same range. Only the parameters marked *live* change "
+         "while a node runs (`ros2 param set`); every other one is read-only: set it at "
+         "start."),
         "",
-        "| node | parameter | default | meaning | from |",
-        "|---|---|---|---|---|",
+        "| node | parameter | default | range | live | meaning | from |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         meaning = r.meaning.replace("|", "\\|")
-        lines.append(f"| `{r.node}` | `{r.name}` | `{format_value(r.default)}` | {meaning} "
+        lines.append(f"| `{r.node}` | `{r.name}` | `{format_value(r.default)}` | "
+                     f"{format_range(r.range)} | {'live' if r.live else ''} | {meaning} "
                      f"| {r.source} |")
     lines += ["", "How each node is started: " + ", ".join(
         f"`{node}`: `{cmd}`" for node, cmd in NODE_ORDER) + ".", ""]

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import rclpy
+import yaml
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
@@ -29,7 +30,7 @@ from roger_bringup.orchestrator import (
     shm_files,
 )
 from roger_common.dds import PROFILE_ENV
-from roger_common.errors import RogerError
+from roger_common.errors import ConfigError, RogerError
 from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT, HeartbeatWatch
 from roger_experiments.evaluation import CycleRow, RunRecorder
 from roger_memory.persistence import load_snapshot
@@ -66,9 +67,12 @@ class RunOptions:
     qtable: Path | None = None
     memory: Path | None = None
     learn: bool = True
-    image_size: int = 128
-    realtime: bool = False
-    gui: bool = False
+    #: Simulator shortcuts: None leaves the value to ``params_file`` (or the default).
+    image_size: int | None = None
+    realtime: bool | None = None
+    gui: bool | None = None
+    #: A standard ROS 2 parameters file handed to every node (``--params-file``).
+    params_file: Path | None = None
     domain_id: int | None = None
     timeout_s: float | None = None
     progress: bool = True
@@ -86,23 +90,77 @@ class RunOptions:
         return int(self.cycles or self.max_cycles)
 
 
-def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
-                 observers: int) -> dict[str, list[str]]:
-    def p(**kw: Any) -> list[str]:
+def check_params_file(path: Path) -> None:
+    """Refuse a parameters file a node would misread, naming the file and the key: it must
+    be a YAML mapping of node names to ``{ros__parameters: {...}}``, and under a Roger
+    node's own name every parameter must be one that node declares (rclpy would ignore a
+    misspelt one silently). Values are checked by the nodes (a bad one stops the run with
+    the node's one line).
+
+    Raises:
+        ConfigError: The file is missing, not YAML, or holds a key no node declares.
+    """
+    from roger_bringup.paramdoc import BUILTIN, parameter_table
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: must be a mapping of node names to ros__parameters")
+    known: dict[str, set[str]] = {}
+    for row in parameter_table():
+        known.setdefault(row.node, set()).add(row.name)
+
+    def flat(d: dict[str, Any], prefix: str = "") -> list[str]:
         out: list[str] = []
-        for k, v in kw.items():
-            out += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+        for k, v in d.items():
+            out += flat(v, f"{prefix}{k}.") if isinstance(v, dict) else [f"{prefix}{k}"]
         return out
-    params = {
-        "sim": p(world=world, seed=opt.seed, image_size=opt.image_size, realtime=opt.realtime,
-                 gui=opt.gui),
-        "perception": [],
-        "memory": p(memory_file=memory, seed=opt.seed),
-        "attention": p(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
-                       stop_when_complete=opt.stable_cycles if opt.until_complete else 0,
-                       qtable_file=qtable, learn=opt.learn, wait_for_observers=observers,
-                       retry_after_s=RETRY_AFTER_S),
+    for node, section in data.items():
+        params = section.get("ros__parameters") if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f"{path}: {node}: must hold a ros__parameters mapping")
+        for name in flat(params):
+            if node in known and name not in known[node] | BUILTIN:
+                raise ConfigError(f"{path}: {node}.ros__parameters.{name}: {node} has no "
+                                  "such parameter (docs/parameters.md lists them)")
+
+
+def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
+                 observers: int, out: Path) -> dict[str, list[str]]:
+    """Each node's ``--ros-args`` after ``use_sim_time``: the run's own values as ``-p``.
+
+    With ``opt.params_file`` every node also gets ``--params-file OUT/params.yaml``: the
+    user's file with the run's own values written into each node's section (rcl lets a
+    params file win over ``-p``, whatever their order, so the run's values must be in the
+    file to win). OUT/params.yaml is kept: the exact parameters of the run.
+    """
+    values: dict[str, dict[str, Any]] = {
+        "sim": dict(world=world, seed=opt.seed, image_size=opt.image_size,
+                    realtime=opt.realtime, gui=opt.gui),
+        "perception": {},
+        "memory": dict(memory_file=memory, seed=opt.seed),
+        "attention": dict(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
+                          stop_when_complete=opt.stable_cycles if opt.until_complete else 0,
+                          qtable_file=qtable, learn=opt.learn, wait_for_observers=observers,
+                          retry_after_s=RETRY_AFTER_S),
     }
+    values = {n: {k: str(v) if isinstance(v, Path) else v for k, v in kv.items()
+                  if v is not None} for n, kv in values.items()}
+    head: list[str] = []
+    if opt.params_file is not None:
+        merged = yaml.safe_load(opt.params_file.read_text()) or {}
+        for node, kv in values.items():
+            section = merged.setdefault(f"roger_{node}", {}).setdefault("ros__parameters", {})
+            section.update(kv)
+        path = out / "params.yaml"
+        path.write_text(yaml.safe_dump(merged, sort_keys=False))
+        head = ["--params-file", str(path)]
+    params: dict[str, list[str]] = {}
+    for node, kv in values.items():
+        params[node] = list(head)
+        for k, v in kv.items():
+            params[node] += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
     for name, extra in opt.extra_params.items():
         params.setdefault(name, []).extend(extra)
     return params
@@ -175,6 +233,8 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         RunError: A node could not start or the graph stalled (outputs so far are kept).
         StopRequested: SIGINT/SIGTERM; the graph is stopped and the outputs written first.
     """
+    if opt.params_file is not None:
+        check_params_file(opt.params_file)
     world_path = opt.world.resolve()
     world = load_world(world_path)
     out = opt.out.resolve()
@@ -220,7 +280,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
     for node in observers:
         executor.add_node(node)
     watch = HeartbeatWatch(monitor)
-    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers)),
+    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers), out),
                   shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
     t0 = time.monotonic()

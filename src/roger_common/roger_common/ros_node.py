@@ -6,15 +6,29 @@ Message conversions are in ``conversions``; neither module is imported by core c
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import fields, replace
 from typing import Any, TypeVar
 
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from roger_common.configdoc import config_fields, field_default, field_description, live_fields
+from roger_common.configdoc import (
+    config_fields,
+    field_default,
+    field_description,
+    field_range,
+    live_fields,
+)
+from roger_common.errors import ConfigError
 
 #: Commands and state: reliable, depth 10 (house style).
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -23,12 +37,40 @@ RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 #: cycle waits for the stereo pair rendered after its goal, so a dropped pair would stall it.
 IMAGES = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
                     history=HistoryPolicy.KEEP_LAST)
+#: Ground-truth label images (scoring only): reliable and deep. A writer's KEEP_LAST history
+#: drops samples its reader has not yet acknowledged, so with depth 5 a monitor that fell
+#: 5 frames behind on a loaded machine lost a frame's labels and scored that cycle without
+#: them (a rare test_graph_matches_core failure under `make test`).
+LABELS = QoSProfile(depth=64, reliability=ReliabilityPolicy.RELIABLE,
+                    history=HistoryPolicy.KEEP_LAST)
 #: One-shot data (world description, spatial map, ground truth): latched.
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      history=HistoryPolicy.KEEP_LAST)
 
 C = TypeVar("C")
+
+#: IntegerRange bounds for an unbounded side (int64).
+_INT64 = 2**63 - 1
+
+
+def descriptor(config_cls: type, name: str, path: tuple[str, ...], owner: type,
+               live: bool) -> ParameterDescriptor:
+    """The ROS descriptor of one config field: its description, its range (read off the
+    dataclass's validation, ``configdoc.field_range``) and ``read_only`` unless ``live``."""
+    d = ParameterDescriptor(name=name, description=field_description(owner, path[-1]),
+                            read_only=not live)
+    bounds = field_range(config_cls, path)
+    if bounds is not None:
+        lo, hi = bounds
+        if isinstance(_get(config_cls(), path), int):
+            d.integer_range = [IntegerRange(
+                from_value=-_INT64 if math.isinf(lo) else int(lo),
+                to_value=_INT64 if math.isinf(hi) else int(hi), step=0)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
 
 
 def _build(config_cls: type[C], values: dict[tuple[str, ...], Any]) -> C:
@@ -70,9 +112,11 @@ def declare_config(node: Node, config_cls: type[C], prefix: str = "",
     parameter's description is its field's (``configdoc.field_description``). The
     dataclass's own validation (``__post_init__``) rejects bad values: at start the error
     reaches ``main``; at ``ros2 param set`` time the change is refused with its reason.
-    A valid change of a field that may change while running (``configdoc.live_fields``)
-    goes to ``apply(new_config)``; any other change is refused as "read at start only"
-    (setting a parameter to the value it has is accepted and changes nothing).
+    Each descriptor also carries the field's range and ``read_only``: only a field that may
+    change while running (``configdoc.live_fields``) of a node that passes ``apply`` is
+    writable; its valid changes go to ``apply(new_config)``, and a value the dataclass
+    refuses is refused with its reason. A value out of range at start (a params file, a
+    ``-p`` override) raises ``ConfigError`` naming the parameter.
 
     Args:
         node: The node that owns the parameters.
@@ -89,8 +133,12 @@ def declare_config(node: Node, config_cls: type[C], prefix: str = "",
             default = overrides[name]
         if isinstance(default, tuple):
             default = list(default)
-        node.declare_parameter(name, default, ParameterDescriptor(
-            description=field_description(owner, path[-1])))
+        live = apply is not None and path[-1] in live_fields(owner)
+        try:
+            node.declare_parameter(name, default,
+                                   descriptor(config_cls, name, path, owner, live))
+        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+            raise ConfigError(f"parameter {name}: {exc}") from exc
         value = node.get_parameter(name).value
         values[path] = tuple(value) if isinstance(default, list) else value
     current = [_build(config_cls, values)]

@@ -83,11 +83,12 @@ class MemoryConfig:
     noise_dof: float = field(default=CALIBRATED_NOISE_DOF, metadata={
         "doc": "Calibrated Student-t degrees of freedom of the replay noise"})
     veto: tuple[float, ...] = field(default=CALIBRATED_VETO, metadata={
-        "doc": "Calibrated largest per-feature difference of an identification"})
+        "doc": "Calibrated largest per-feature difference of an identification",
+        "live": True})
     min_common_features: int = field(default=6, metadata={
         "doc": "Fewest common known features for a stored look to answer"})
     identify_share: float = field(default=0.5, metadata={
-        "doc": "Smallest winner share for a non-final identification"})
+        "doc": "Smallest winner share for a non-final identification", "live": True})
     refine_looks: int = field(default=12, metadata={
         "doc": "Looks an address may hold at most"})
     learning_rate: float = field(default=0.02, metadata={

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from roger_common.configdoc import check_live_change
 from roger_common.errors import ConfigError, MemoryFileError, MessageError
 from roger_common.types import (
     FEATURE_DIM,
@@ -125,6 +126,17 @@ class AssociativeMemory:
     def config(self) -> MemoryConfig:
         """The configuration in use."""
         return self._config
+
+    def reconfigure(self, config: MemoryConfig) -> None:
+        """Take a new configuration that differs only in fields marked live (the veto and
+        ``identify_share``, read per request); the next decision uses it.
+
+        Raises:
+            ValueError: Another field differs (it shaped the network: restart to change).
+        """
+        check_live_change(self._config, config)
+        self._config = config
+        self._veto = np.asarray(config.veto, np.float32)
 
     @property
     def seed(self) -> int:

@@ -22,6 +22,7 @@ from rclpy.node import Node
 
 from roger_common import conversions as conv
 from roger_common.atomic import sync_file
+from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
 from roger_common.ros_node import LATCHED, RELIABLE, declare_config, spin_node
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp
@@ -39,7 +40,9 @@ class MemoryNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_memory", **kwargs)
         self.node_config = declare_config(self, MemoryNodeConfig)
-        self.config = declare_config(self, MemoryConfig)
+        self.config = declare_config(
+            self, MemoryConfig,
+            apply=lambda new: self.memory.reconfigure(take_live_fields(self.memory.config, new)))
         path = self.node_config.memory_file
         self.path = Path(path) if path else None
         seed = self.node_config.seed

@@ -8,7 +8,7 @@ field and the value.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 from roger_common.errors import ConfigError
 
@@ -62,7 +62,7 @@ class SimConfig:
     weight_noise_kg: float = 0.02
     goal_timeout_s: float = 5.0
     improve_exposures: int = 4
-    realtime: bool = False
+    realtime: bool = field(default=False, metadata={"live": True})
     gui: bool = False
     light_ambient: float = 0.6
     light_diffuse: float = 0.35

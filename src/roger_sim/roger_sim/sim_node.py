@@ -23,9 +23,11 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from roger_common import conversions as common
 from roger_common.atomic import atomic_write_bytes, sync_file
+from roger_common.configdoc import take_live_fields
 from roger_common.errors import RogerError
 from roger_common.ros_node import (
     IMAGES,
+    LABELS,
     LATCHED,
     RELIABLE,
     declare_config,
@@ -91,7 +93,7 @@ class SimNode(Node):
         self.pub_haptic = self.create_publisher(HapticReading, "/roger/haptic", RELIABLE)
         self.pub_truth = self.create_publisher(GroundTruth, "/roger/ground_truth", LATCHED)
         self.pub_labels = self.create_publisher(GroundTruthLabels, "/roger/ground_truth/labels",
-                                                IMAGES)
+                                                LABELS)
         self.create_subscription(ActionGoal, "/roger/goal", self.on_goal, RELIABLE)
         self.create_subscription(WorldEdit, "/roger/world_edit", self.on_world_edit, RELIABLE)
         self.create_service(EditWorld, "/roger/edit_world", self.on_edit_world)
@@ -136,6 +138,14 @@ class SimNode(Node):
         self.pub_joints.publish(conv.joint_state_msg(names, pos, vel, eff, stamp))
         if self._last_haptic_msg is not None:
             self._publish_ground_truth()
+
+    def _reconfigure(self, new: SimConfig) -> None:
+        """A live parameter change (``realtime``): pacing starts from now when it turns on."""
+        config = take_live_fields(self.sim.config, new)
+        if config.realtime and not self.sim.config.realtime:
+            self._wall_start = time.monotonic() - self.sim.sim_time
+        self.sim.reconfigure(config)
+        self.config = config
 
     def _pace(self, sim_time: float) -> None:
         """In real-time mode, hold the results until the wall clock has caught up."""

@@ -16,6 +16,7 @@ from typing import Self
 import numpy as np
 import pybullet as pb
 
+from roger_common.configdoc import check_live_change
 from roger_common.errors import WorldFileError
 from roger_common.types import (
     Action,
@@ -144,6 +145,16 @@ class Simulator:
     def camera(self) -> CameraModel:
         """Intrinsics shared by both retinas."""
         return self._retina.camera
+
+    def reconfigure(self, config: SimConfig) -> None:
+        """Take a new configuration that differs only in fields marked live (``realtime``
+        pacing); the next goal uses it.
+
+        Raises:
+            ValueError: Another field differs (it shaped the world or the retinas).
+        """
+        check_live_change(self.config, config)
+        self.config = config
 
     @property
     def sim_time(self) -> float:
