@@ -16,7 +16,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from roger_bringup.monitor_logic import RunMonitor
-from roger_common.ros_node import IMAGES, LATCHED, RELIABLE
+from roger_common.ros_node import LABELS, LATCHED, RELIABLE
 from roger_experiments.evaluation import RunRecorder
 from roger_interfaces.msg import (
     ConvergenceEvent,
@@ -48,7 +48,7 @@ class MonitorNode(Node):
         # the first goals' convergence events (volatile) would be lost otherwise.
         self._gated = [
             self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
-                                     self.monitor.on_labels, IMAGES),
+                                     self.monitor.on_labels, LABELS),
             self.create_subscription(ConvergenceEvent, "/roger/convergence",
                                      self.monitor.on_convergence, RELIABLE)]
         self._gate_deadline = time.monotonic() + GATE_TIMEOUT_S

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 #: QoS names of the table -> names of the profiles in roger_common.ros_node.
-QOS_PROFILES: dict[str, str] = {"reliable": "RELIABLE", "images": "IMAGES",
+QOS_PROFILES: dict[str, str] = {"reliable": "RELIABLE", "images": "IMAGES", "labels": "LABELS",
                                 "latched": "LATCHED"}
 
 
@@ -64,7 +64,7 @@ TOPICS: tuple[Topic, ...] = (
           "what an arm felt (weight) in a haptic improvement", per_cycle=False),
     Topic("/roger/ground_truth", "roger_interfaces/GroundTruth", "latched", "sim",
           "monitor (evaluation only)", "the world's objects and poses"),
-    Topic("/roger/ground_truth/labels", "roger_interfaces/GroundTruthLabels", "images", "sim",
+    Topic("/roger/ground_truth/labels", "roger_interfaces/GroundTruthLabels", "labels", "sim",
           "monitor (evaluation only)", "which object each retina pixel shows"),
     Topic("/roger/rois", "roger_interfaces/RoiArray", "reliable", "perception", "attention",
           "ROIs of each stereo pair: features (eqs. 1-5), position, activation"),

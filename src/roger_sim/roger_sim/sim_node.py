@@ -62,7 +62,7 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("roger_sim", **kwargs)
         self.node_config = declare_config(self, SimNodeConfig)
-        self.config = declare_config(self, SimConfig)
+        self.config = declare_config(self, SimConfig, apply=self._reconfigure)
         world_path = self.node_config.world
         self.world = load_world(world_path)
         state_dir = os.environ.get(STATE_DIR_ENV, "")
