@@ -33,6 +33,8 @@ import threading
 from collections.abc import Iterable
 from pathlib import Path
 
+from roger_bringup.orchestrator import shm_group as group_of  # one rule for both
+
 SHM = Path("/dev/shm")
 #: RTPS well-known ports: PB + DG * domain + offset (offset < DG).
 PORT_BASE = 7400
@@ -54,16 +56,6 @@ def shm_files() -> dict[str, int]:
             except OSError:
                 continue
     return out
-
-
-def group_of(name: str) -> str:
-    """The port or segment a file belongs to: ``sem.fastrtps_port7411_mutex`` and
-    ``fastrtps_port7411_el`` belong to ``fastrtps_port7411``."""
-    base = name[4:] if name.startswith("sem.") else name
-    for suffix in ("_mutex", "_el"):
-        if base.endswith(suffix):
-            base = base[:-len(suffix)]
-    return base
 
 
 def domain_of(name: str) -> int | None:
