@@ -227,7 +227,7 @@ def check_qos(bag, offered):
             assert {k: v for k, v in recorded.items() if k not in ("history", "depth")} == \
                 {k: v for k, v in seen.items() if k not in ("history", "depth")}, name
     depths = {t.qos: in_yaml[t.name][0]["depth"] for t in TOPICS}
-    assert depths == {"reliable": 10, "images": 5, "labels": 64, "latched": 1}
+    assert depths == {"reliable": 10, "images": 5, "labels": 64, "reports": 1000, "latched": 1}
     assert in_yaml["/roger/ground_truth"][0]["durability"] == "transient_local"
 
 

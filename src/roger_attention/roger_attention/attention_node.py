@@ -30,7 +30,7 @@ from roger_common import conversions as common
 from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
-from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, declare_config, spin_node
+from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, REPORTS, declare_config, spin_node
 from roger_common.types import CameraModel, EyePose, MatchResult, Roi
 from roger_interfaces.msg import (
     ActionGoal,
@@ -71,8 +71,8 @@ class AttentionNode(Node):
         self.pub_goal = self.create_publisher(ActionGoal, "/roger/goal", RELIABLE)
         self.pub_request = self.create_publisher(MemoryRequestMsg, "/roger/memory/request",
                                                  RELIABLE)
-        self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", RELIABLE)
-        self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", RELIABLE)
+        self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", REPORTS)
+        self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", REPORTS)
         self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
         # Geometry and camera first: when a frame's geometry and its ROI array are taken in
         # the same executor pass, callbacks run in subscription order.

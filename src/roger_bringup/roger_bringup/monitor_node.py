@@ -16,7 +16,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from roger_bringup.monitor_logic import RunMonitor
-from roger_common.ros_node import LABELS, LATCHED, RELIABLE
+from roger_common.ros_node import LABELS, LATCHED, REPORTS
 from roger_experiments.evaluation import RunRecorder
 from roger_interfaces.msg import (
     ConvergenceEvent,
@@ -40,7 +40,7 @@ class MonitorNode(Node):
         super().__init__("roger_monitor", **kwargs)
         self.monitor = RunMonitor(recorder)
         self.recorder = recorder
-        self.create_subscription(Metrics, "/roger/metrics", self.monitor.on_metrics, RELIABLE)
+        self.create_subscription(Metrics, "/roger/metrics", self.monitor.on_metrics, REPORTS)
         self.create_subscription(GroundTruth, "/roger/ground_truth", self.monitor.on_truth,
                                  LATCHED)
         # The attention node starts once it sees the /roger/policy_state subscription, so
@@ -50,7 +50,7 @@ class MonitorNode(Node):
             self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
                                      self.monitor.on_labels, LABELS),
             self.create_subscription(ConvergenceEvent, "/roger/convergence",
-                                     self.monitor.on_convergence, RELIABLE)]
+                                     self.monitor.on_convergence, REPORTS)]
         self._gate_deadline = time.monotonic() + GATE_TIMEOUT_S
         self._gate_timer = self.create_timer(0.02, self._open_gate,
                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -68,7 +68,7 @@ class MonitorNode(Node):
         self._gate_timer.cancel()
         self.destroy_timer(self._gate_timer)
         self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
-                                 RELIABLE)
+                                 REPORTS)
 
     @property
     def cycles(self) -> int:

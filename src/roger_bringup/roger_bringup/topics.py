@@ -3,7 +3,7 @@
 Each row: topic, message type, QoS profile name, publisher node, subscriber nodes, what
 it carries. ``per_cycle`` marks topics that carry messages in every run of a few cycles.
 The QoS name is that of the profile the topic's publisher is created with
-(``roger_common.ros_node``: RELIABLE, IMAGES, LATCHED); bags record it.
+(``roger_common.ros_node``: RELIABLE, IMAGES, LABELS, REPORTS, LATCHED); bags record it.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 #: QoS names of the table -> names of the profiles in roger_common.ros_node.
 QOS_PROFILES: dict[str, str] = {"reliable": "RELIABLE", "images": "IMAGES", "labels": "LABELS",
-                                "latched": "LATCHED"}
+                                "reports": "REPORTS", "latched": "LATCHED"}
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ TOPICS: tuple[Topic, ...] = (
           "neck, eye and arm joints after each goal"),
     Topic("/roger/controller_status", "roger_interfaces/ControllerStatus", "reliable", "sim",
           "-", "status of the five servo controllers"),
-    Topic("/roger/convergence", "roger_interfaces/ConvergenceEvent", "reliable", "sim",
+    Topic("/roger/convergence", "roger_interfaces/ConvergenceEvent", "reports", "sim",
           "monitor (evaluation only)",
           "a goal finished: converged or failed, sim time and physics steps"),
     Topic("/roger/haptic", "roger_interfaces/HapticReading", "reliable", "sim", "perception",
@@ -76,9 +76,9 @@ TOPICS: tuple[Topic, ...] = (
           "attention", "identified / new / undetermined, address, confidence"),
     Topic("/roger/memory/learned", "roger_interfaces/MemoryResult", "latched", "memory", "-",
           "the last object stored in long-term memory", per_cycle=False),
-    Topic("/roger/policy_state", "roger_interfaces/PolicyState", "reliable", "attention",
+    Topic("/roger/policy_state", "roger_interfaces/PolicyState", "reports", "attention",
           "monitor", "each cycle: state bits, action, reward, TD error, focus"),
-    Topic("/roger/metrics", "roger_interfaces/Metrics", "reliable", "attention", "monitor",
+    Topic("/roger/metrics", "roger_interfaces/Metrics", "reports", "attention", "monitor",
           "Table 2 counters as the run goes"),
     Topic("/roger/spatial_map", "roger_interfaces/SpatialMap", "latched", "attention",
           "perception", "the pre-attentional map: positions, mapping status, interest"),

@@ -27,7 +27,7 @@ from roger_bringup.conversions import map_interests, view_to_msg
 from roger_bringup.monitor_logic import COUNTER_FIELDS
 from roger_common.conversions import image_to_array, msg_to_rois
 from roger_common.errors import ConfigError, MessageError
-from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, declare_config, spin_node
+from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, REPORTS, declare_config, spin_node
 from roger_common.types import Action, Roi
 from roger_experiments.evaluation import ACTION_NAMES
 from roger_experiments.view import ViewWriter, compose_view, interests_by_roi
@@ -96,8 +96,8 @@ class ViewNode(Node):
         self.create_subscription(Image, "/roger/right/image_raw",
                                  lambda m: self._part(m, "right"), IMAGES)
         self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
-        self.create_subscription(PolicyState, "/roger/policy_state", self.on_state, RELIABLE)
-        self.create_subscription(Metrics, "/roger/metrics", self.on_metrics, RELIABLE)
+        self.create_subscription(PolicyState, "/roger/policy_state", self.on_state, REPORTS)
+        self.create_subscription(Metrics, "/roger/metrics", self.on_metrics, REPORTS)
         self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
 
     def _slot(self, stamp: Any) -> dict[str, Any]:

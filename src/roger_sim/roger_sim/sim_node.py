@@ -30,6 +30,7 @@ from roger_common.ros_node import (
     LABELS,
     LATCHED,
     RELIABLE,
+    REPORTS,
     declare_config,
     spin_node,
 )
@@ -89,7 +90,7 @@ class SimNode(Node):
         self.pub_status = self.create_publisher(ControllerStatus, "/roger/controller_status",
                                                 RELIABLE)
         self.pub_convergence = self.create_publisher(ConvergenceEvent, "/roger/convergence",
-                                                     RELIABLE)
+                                                     REPORTS)
         self.pub_haptic = self.create_publisher(HapticReading, "/roger/haptic", RELIABLE)
         self.pub_truth = self.create_publisher(GroundTruth, "/roger/ground_truth", LATCHED)
         self.pub_labels = self.create_publisher(GroundTruthLabels, "/roger/ground_truth/labels",
