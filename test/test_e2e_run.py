@@ -15,6 +15,8 @@ import pytest
 import yaml
 from conftest import REPO, WORLDS, child_pids
 
+from roger_experiments.progress import counters_info
+
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
 CONTRACT_COLUMNS = ["cycle", "state", "action", "reward", "td_error", "roi", "true_object",
                     "outcome"]
@@ -48,7 +50,7 @@ def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_dom
     out = tmp_path / "run"
     proc = subprocess.run(
         [*ROGER, "run", "--world", str(WORLDS / "table1.yaml"), "--policy", policy,
-         "--cycles", "8", "--seed", "3", "--out", str(out), "--quiet",
+         "--cycles", "8", "--seed", "3", "--out", str(out),
          "--domain-id", str(ros_domain), "--timeout", "200"],
         capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
@@ -64,6 +66,10 @@ def test_roger_run_writes_outputs_and_leaves_nothing(no_leaks, tmp_path, ros_dom
     assert metrics["map_updates"] == (metrics["positive_identifications"]
                                       + metrics["new_objects"] + metrics["remaps"])
     assert metrics["objects_in_world"] == 4 and metrics["objects_visited"] >= 1
+    # Progress goes to stderr (plain lines: not a terminal); its last line is metrics.json's.
+    shown = [ln for ln in proc.stderr.splitlines() if ln.startswith("  run table1")]
+    assert shown and shown[-1] == (f"  run table1, {policy}: {metrics['cycles']}/8 cycles "
+                                   f"{counters_info(metrics)}"), shown
     with open(out / "cycles.csv") as fh:
         rows = list(csv.reader(fh))
     assert rows[0][:8] == CONTRACT_COLUMNS

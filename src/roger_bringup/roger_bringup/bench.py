@@ -45,6 +45,7 @@ import yaml
 from roger_common.types import FEATURE_DIM, WorldSpec
 from roger_experiments.core_loop import CoreLoop
 from roger_experiments.evaluation import ACTION_NAMES
+from roger_experiments.progress import ProgressBar
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 from roger_perception.perception import STAGES
@@ -265,14 +266,15 @@ def _rate(ends: list[float]) -> float:
 
 
 def main_bench(out: Path, quick: bool = False, world: Path | None = None,
-               log: Callable[[str], None] = print) -> dict[str, Any]:
+               log: Callable[[str], None] = print, progress: bool = True) -> dict[str, Any]:
     """Run every measurement once, write ``out/bench.json`` and print a table.
 
     Args:
         out: Output folder (graph runs go to ``out/graph_*``).
         quick: A few cycles only (smoke test; the ratios are then noisy).
         world: World file of the graph-vs-core runs (default worlds/inspection.yaml).
-        log: Where progress lines and the table go.
+        log: Where the table goes.
+        progress: Show which measurement runs (a bar on a terminal, lines otherwise).
 
     Returns:
         The content of bench.json.
@@ -288,13 +290,22 @@ def main_bench(out: Path, quick: bool = False, world: Path | None = None,
     t_all = time.perf_counter()
 
     rounds = 1 if quick else ROUNDS
+    bar = ProgressBar(2 * rounds + 6, "roger bench", "measurements", enabled=progress)
+
+    started = 0
+
+    def step(what: str) -> None:
+        """Show the measurement that starts now (the ones before it are done)."""
+        nonlocal started
+        bar.update(started, what)
+        started += 1
     core_runs: list[CoreRun] = []
     graph_runs: list[dict[str, Any]] = []
     for i in range(rounds):
         tag = f" (round {i + 1} of {rounds})" if rounds > 1 else ""
-        log(f"roger bench: core loop, {cycles} cycles on {world_path.name}{tag}")
+        step(f"core loop, {cycles} cycles on {world_path.name}{tag}")
         core_runs.append(run_core_timed(spec, cycles, seed))
-        log(f"roger bench: graph, {cycles} cycles on {world_path.name}{tag}")
+        step(f"graph, {cycles} cycles on {world_path.name}{tag}")
         graph_runs.append(run_graph_timed(world_path, out / ("graph_128" if i == 0 else
                                                              f"graph_128_{i + 1}"),
                                           cycles, seed))
@@ -312,23 +323,27 @@ def main_bench(out: Path, quick: bool = False, world: Path | None = None,
                                                                    core_runs[0].actions))
                              if a != b), None)
 
-    log(f"roger bench: graph and core at 256 px, {cycles_256} cycles")
+    step(f"core at 256 px, {cycles_256} cycles")
     core_256 = run_core_timed(spec, cycles_256, seed, image_size=256)
+    step(f"graph at 256 px, {cycles_256} cycles")
     graph_256 = run_graph_timed(world_path, out / "graph_256", cycles_256, seed,
                                 image_size=256)
 
-    log(f"roger bench: scaling, {scale_cycles} cycles on 4 and 64 objects")
     small = random_world(2, 2, seed=3, size_range=(0.05, 0.08), name="bench_4")
     large = random_world(16, 4, seed=3, size_range=(0.05, 0.08), name="bench_64")
     for w in (small, large):
         (out / f"{w.name}.yaml").write_text(yaml.safe_dump(world_to_dict(w), sort_keys=False))
+    step(f"scaling, {scale_cycles} cycles on 4 objects")
     run_small = run_core_timed(small, scale_cycles, seed)
+    step(f"scaling, {scale_cycles} cycles on 64 objects")
     run_large = run_core_timed(large, scale_cycles, seed)
 
-    log("roger bench: memory match with 10 and 1,000 objects")
     queries = 50 if quick else 300
+    step("memory match with 10 objects")
     match_10 = match_latency(10, queries, seed)
+    step("memory match with 1,000 objects")
     match_1000 = match_latency(1000, queries, seed)
+    bar.close(bar.total, "done")
 
     stages = {k: round(v, 3) for k, v in core.stages.items()}
     stages["transport"] = round(graph_cycle_s * 1e3 - core.seconds_per_cycle * 1e3, 3)

@@ -92,7 +92,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     """``roger bench``: graph vs core, cycle vs floor, scaling; writes DIR/bench.json."""
     from roger_bringup.bench import main_bench
-    result = main_bench(args.out, quick=args.quick)
+    result = main_bench(args.out, quick=args.quick, progress=not args.quiet)
     print(f"bench.json: {args.out / 'bench.json'}")
     return 0 if result else 1
 
@@ -145,7 +145,7 @@ def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: P
             return recorder.close(time.monotonic() - t0)
     if (out / "qtable.json").exists():
         (out / "qtable.json").unlink()  # training starts from a fresh table
-    return train(worlds, seeds, out, run_one, describe=made)
+    return train(worlds, seeds, out, run_one, progress=not quiet, describe=made)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -208,7 +208,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     def run_complete(policy: str, seed: int, run_dir: Path) -> dict:
         return run(policy, seed, run_dir, True)
-    result = compare(args.world, seeds, args.out, run_one, trained=trained,
+    result = compare(args.world, seeds, args.out, run_one, progress=not args.quiet,
+                     trained=trained,
                      run_complete=run_complete if stable > 0 else None)
     print()
     print((args.out / "table2.md").read_text())
@@ -304,6 +305,7 @@ def main(argv: list[str] | None = None) -> None:
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
     p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")
     p_bench.add_argument("--quick", action="store_true", help="a few cycles only (smoke test)")
+    p_bench.add_argument("--quiet", action="store_true", help="no progress bar")
     p_bench.set_defaults(func=cmd_bench)
     p_replay = sub.add_parser("replay", help="regenerate metrics and figures from a recording")
     p_replay.add_argument("file", type=Path, metavar="BAG",

@@ -33,6 +33,7 @@ from roger_common.dds import PROFILE_ENV
 from roger_common.errors import ConfigError, RogerError
 from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT, HeartbeatWatch
 from roger_experiments.evaluation import CycleRow, RunRecorder
+from roger_experiments.progress import ProgressBar, counters_info
 from roger_memory.persistence import load_snapshot
 from roger_sim.world import load_world
 
@@ -46,6 +47,8 @@ MAX_RESTARTS = 3
 RETRY_AFTER_S = 3.0
 #: Wall seconds without a new cycle (once cycling) after which the run is declared stalled.
 STALL_S = 90.0
+#: Wall seconds between the run loop's checks of the node processes and progress updates.
+CHECK_PERIOD_S = 0.05
 #: Wall seconds to wait, once the attention node said "done", for the cycles it reported
 #: and this process has not received yet (Fast DDS repairs a lost sample at the writer's
 #: next heartbeat, 3 s apart by default).
@@ -199,34 +202,7 @@ def check_files(memory: Path, qtable: Path) -> None:
         QTable.load(qtable)
 
 
-class Progress:
-    """A one-line progress bar on a terminal, a line every 10 % otherwise."""
-
-    def __init__(self, total: int, stream: TextIO = sys.stderr, enabled: bool = True) -> None:
-        self.total, self.stream, self.enabled = max(1, total), stream, enabled
-        self.tty = stream.isatty()
-        self._last = -1
-
-    def update(self, done: int, extra: str = "") -> None:
-        """Show ``done`` of ``total``."""
-        if not self.enabled:
-            return
-        frac = min(1.0, done / self.total)
-        if self.tty:
-            bar = "#" * int(30 * frac)
-            self.stream.write(f"\r  [{bar:<30}] {done}/{self.total} cycles {extra}   ")
-            self.stream.flush()
-        elif int(frac * 10) > self._last:
-            self._last = int(frac * 10)
-            self.stream.write(f"  {done}/{self.total} cycles {extra}\n")
-
-    def close(self) -> None:
-        """End the bar's line."""
-        if self.enabled and self.tty:
-            self.stream.write("\n")
-
-
-def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
+def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
     """Run the graph once and write ``cycles.csv`` and ``metrics.json`` to ``opt.out``.
 
     Returns:
@@ -237,6 +213,9 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         RunError: A node could not start or the graph stalled (outputs so far are kept).
         StopRequested: SIGINT/SIGTERM; the graph is stopped and the outputs written first.
     """
+    # Looked up now, not at import: while a progress bar is drawn, sys.stdout is the bar's
+    # proxy, which prints above the bar.
+    log = sys.stdout if log is None else log
     if opt.params_file is not None:
         check_params_file(opt.params_file)
     world_path = opt.world.resolve()
@@ -288,7 +267,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
                   shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
     t0 = time.monotonic()
-    progress = Progress(budget, enabled=opt.progress)
+    progress = ProgressBar(budget, f"run {world.name}, {opt.policy}", enabled=opt.progress)
     status = "incomplete"
     try:
         graph.start()
@@ -306,8 +285,14 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         deadline = time.monotonic() + timeout
         done_seen: float | None = None
         last_cycles, last_progress = -1, time.monotonic()
+        next_check = 0.0
         while True:
             executor.spin_once(timeout_sec=0.1)
+            # One message per spin: the checks below run at most every CHECK_PERIOD_S so
+            # that the monitor keeps up with a fast graph (several messages per cycle).
+            if time.monotonic() < next_check and not monitor.done:
+                continue
+            next_check = time.monotonic() + CHECK_PERIOD_S
             _check_children(graph, restart=True, env=env, log=log, watch=watch,
                             hang_s=opt.hang_timeout_s)
             if monitor.cycles != last_cycles:
@@ -316,9 +301,7 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
                 raise RunError(f"the graph stalled: no cycle for {STALL_S:.0f} s after cycle "
                                f"{monitor.cycles}; node logs are in {out / 'logs'}")
             c = recorder.counters
-            progress.update(monitor.cycles, f"shifts {c.get('attention_shifts', 0)} "
-                            f"new {c.get('new_objects', 0)} ids "
-                            f"{c.get('positive_identifications', 0)}")
+            progress.update(monitor.cycles, counters_info(c))
             if monitor.done:
                 # The attention node ends the run: its budget, or (--until-complete) its
                 # own completion rule; the ground truth has no say in it. Its last states
@@ -339,7 +322,6 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         while time.monotonic() < flush_until:
             executor.spin_once(timeout_sec=0.05)
     finally:
-        progress.close()
         restore()
         killed = graph.stop()
         executor.shutdown()
@@ -354,7 +336,13 @@ def run_graph(opt: RunOptions, log: TextIO = sys.stdout) -> dict[str, Any]:
         missing = int(recorder.counters.get("cycles", 0)) - monitor.cycles
         if status in ("complete", "done") and missing > 0:
             status = f"{status}, {missing} cycles unrecorded"
-        metrics = recorder.close(time.monotonic() - t0)
+        try:
+            metrics = recorder.close(time.monotonic() - t0)
+        except BaseException:
+            progress.close()
+            raise
+        # The bar's last line shows what metrics.json says (the live counters can lag).
+        progress.close(metrics["cycles"], counters_info(metrics))
         metrics_status = {"status": status, "killed_on_stop": killed,
                           "restarts": {c.name: c.restarts for c in graph.children if c.restarts},
                           "deaths": graph.deaths,

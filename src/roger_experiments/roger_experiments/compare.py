@@ -16,6 +16,7 @@ from typing import Any
 
 from roger_common.atomic import atomic_write_bytes
 from roger_common.types import WorldSpec
+from roger_experiments.progress import ProgressBar, counters_info
 
 POLICIES: tuple[str, ...] = ("qlearning", "straightforward")
 #: Table 2 of the paper, after 204 control loops: (1) Q-learning, (2) simple.
@@ -348,7 +349,7 @@ def write_outputs(out: Path, results: list[RunResult], world: str,
 
 def compare(world: Path, seeds: list[int], out: Path,
             run_one: Callable[[str, int, Path], dict[str, Any]],
-            progress: Callable[[str], None] = print,
+            progress: bool = True,
             trained: TrainedTable | None = None,
             run_complete: Callable[[str, int, Path], dict[str, Any]] | None = None
             ) -> dict[str, Any]:
@@ -358,16 +359,18 @@ def compare(world: Path, seeds: list[int], out: Path,
     (``out/complete``), for the report's sixth line."""
     def runs(kind: str, run: Callable[[str, int, Path], dict[str, Any]]) -> list[RunResult]:
         done: list[RunResult] = []
-        total = len(seeds) * len(POLICIES)
-        for i, seed in enumerate(seeds):
-            for j, policy in enumerate(POLICIES):
-                run_dir = out / kind / f"{policy}_seed{seed}"
-                progress(f"[{i * len(POLICIES) + j + 1}/{total}] {policy}, seed {seed}"
-                         + (" (until the robot's own completion)" if kind == "complete"
-                            else ""))
-                metrics = run(policy, seed, run_dir)
-                done.append(RunResult(policy, seed, metrics,
-                                      read_cycles(run_dir / "cycles.csv")))
+        what = ("compare, until the robot's own completion" if kind == "complete"
+                else "compare")
+        with ProgressBar(len(seeds) * len(POLICIES), what, "runs", enabled=progress) as bar:
+            for seed in seeds:
+                for policy in POLICIES:
+                    bar.update(len(done), f"running {policy}, seed {seed}")
+                    run_dir = out / kind / f"{policy}_seed{seed}"
+                    metrics = run(policy, seed, run_dir)
+                    done.append(RunResult(policy, seed, metrics,
+                                          read_cycles(run_dir / "cycles.csv")))
+                    bar.update(len(done), f"{policy}, seed {seed}: {metrics['cycles']} "
+                               f"cycles, {counters_info(metrics)}")
         return done
     results = runs("runs", run_one)
     complete_runs = runs("complete", run_complete) if run_complete is not None else None

@@ -31,6 +31,7 @@ from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
 from roger_common.types import WorldSpec
 from roger_experiments.evaluation import ACTION_NAMES
+from roger_experiments.progress import ProgressBar
 from roger_sim.world import load_world, world_to_dict
 from roger_sim.worldgen import random_world
 
@@ -184,7 +185,7 @@ def convergence(td: np.ndarray, window: int = MOVING_AVERAGE) -> dict[str, Any]:
 
 def train(worlds: list[Path], seeds: list[int], out: Path,
           run_one: Callable[[Path, int, Path, Path], dict[str, Any]],
-          progress: Callable[[str], None] = print,
+          progress: bool = True,
           describe: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train one Q-table over every (world, seed) pair, in that order.
 
@@ -208,19 +209,21 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
     total = len(worlds) * len(seeds)
     t0 = time.monotonic()
     k = 0
-    for world in worlds:
-        for seed in seeds:
-            k += 1
-            run_dir = out / "runs" / f"{world.stem}_seed{seed}"
-            progress(f"[{k}/{total}] {world.name}, seed {seed}")
-            metrics = run_one(world, seed, qtable, run_dir)
-            runs.append({"world": world.stem, "seed": seed,
-                         **{key: metrics.get(key) for key in RUN_KEYS}})
-            with open(run_dir / "cycles.csv", newline="") as fh:
-                for row in csv.DictReader(fh):
-                    if row["td_error"]:
-                        rows.append((k, world.stem, seed, float(row["td_error"]),
-                                     row["state"], row["action"]))
+    with ProgressBar(total, "train", "runs", enabled=progress) as bar:
+        for world in worlds:
+            for seed in seeds:
+                bar.update(k, f"running {world.name}, seed {seed}")
+                k += 1
+                run_dir = out / "runs" / f"{world.stem}_seed{seed}"
+                metrics = run_one(world, seed, qtable, run_dir)
+                runs.append({"world": world.stem, "seed": seed,
+                             **{key: metrics.get(key) for key in RUN_KEYS}})
+                with open(run_dir / "cycles.csv", newline="") as fh:
+                    for row in csv.DictReader(fh):
+                        if row["td_error"]:
+                            rows.append((k, world.stem, seed, float(row["td_error"]),
+                                         row["state"], row["action"]))
+                bar.update(k, f"{world.name}, seed {seed}: {len(rows)} TD updates so far")
     lines = ["trial,run,world,seed,td_error,state,action"] + [
         f"{i + 1},{run},{w},{s},{td:.6g},{st},{a}"
         for i, (run, w, s, td, st, a) in enumerate(rows)]
