@@ -49,33 +49,23 @@ class Policy(Protocol):
         ...
 
 
-class StraightforwardPolicy:
-    """Steps 0-4 of section 4.1, read off the FSM state.
+class FixedPolicy:
+    """A policy that learns nothing: the four learning methods of Policy as no-ops.
 
-    After a shift (Step 1) the match has run. If the object is identified, update the map
-    (Step 2); otherwise improve visually, then haptically (Steps 2-3); once the final trial
-    concluded (identified, or new and stored by the map update) update the map (Step 4) and
-    shift again. An entry already mapped whose identity is confirmed needs no map update:
-    the policy shifts on.
+    Subclasses give ``name`` and ``select_action`` (the straightforward policy; the Gym
+    environment's policy, whose agent learns outside).
     """
 
-    name = "straightforward"
+    name = "fixed"
 
     @property
     def learns(self) -> bool:
-        """Never: the straightforward policy is fixed."""
+        """Never."""
         return False
 
     def select_action(self, state: State, allowed: Sequence[Action]) -> Action:
-        """Map update when allowed, else visual, then haptic improvement, else a shift."""
-        if Action.MAP_UPDATE in allowed:
-            return Action.MAP_UPDATE  # Steps 2-4: identified, or new (stored on update)
-        if not state.decided:
-            for action in (Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT):
-                if action in allowed:
-                    return action  # Step 2 then Step 3
-        check_allowed(Action.ATTENTION_SHIFT, allowed, state)
-        return Action.ATTENTION_SHIFT
+        """The action of the next control cycle, one of ``allowed``."""
+        raise NotImplementedError
 
     def update(self, state: State, action: Action, reward: float, next_state: State,
                terminated: bool, next_allowed: Sequence[Action]) -> float | None:
@@ -91,6 +81,30 @@ class StraightforwardPolicy:
 
     def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
         """Nothing to save."""
+
+
+class StraightforwardPolicy(FixedPolicy):
+    """Steps 0-4 of section 4.1, read off the FSM state.
+
+    After a shift (Step 1) the match has run. If the object is identified, update the map
+    (Step 2); otherwise improve visually, then haptically (Steps 2-3); once the final trial
+    concluded (identified, or new and stored by the map update) update the map (Step 4) and
+    shift again. An entry already mapped whose identity is confirmed needs no map update:
+    the policy shifts on.
+    """
+
+    name = "straightforward"
+
+    def select_action(self, state: State, allowed: Sequence[Action]) -> Action:
+        """Map update when allowed, else visual, then haptic improvement, else a shift."""
+        if Action.MAP_UPDATE in allowed:
+            return Action.MAP_UPDATE  # Steps 2-4: identified, or new (stored on update)
+        if not state.decided:
+            for action in (Action.VISUAL_IMPROVEMENT, Action.HAPTIC_IMPROVEMENT):
+                if action in allowed:
+                    return action  # Step 2 then Step 3
+        check_allowed(Action.ATTENTION_SHIFT, allowed, state)
+        return Action.ATTENTION_SHIFT
 
 
 class QLearningPolicy:

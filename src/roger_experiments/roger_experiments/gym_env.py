@@ -30,7 +30,6 @@ Registered as ``Roger/Attention-v0``: ``gymnasium.make("Roger/Attention-v0", max
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from gymnasium import spaces
 
 from roger_attention.config import AttentionConfig
 from roger_attention.fsm import ACTIONS, STATES, State
+from roger_attention.policies import FixedPolicy
 from roger_attention.qlearning import QTable
 from roger_common.errors import ConfigError, RogerError
 from roger_common.types import FEATURE_DIM, Action, WorldSpec
@@ -63,8 +63,9 @@ class _ActionRefused(RogerError):
 
 
 @dataclass
-class ExternalPolicy:
-    """A Policy (roger_attention.policies) that plays the action the agent gave to step().
+class ExternalPolicy(FixedPolicy):
+    """A Policy (roger_attention.policies) that plays the action the agent gave to step();
+    it learns nothing itself (the agent learns outside).
 
     Attributes:
         next_action: The action of the next control cycle.
@@ -73,31 +74,11 @@ class ExternalPolicy:
     name: str = "external"
     next_action: Action | None = field(default=None)
 
-    @property
-    def learns(self) -> bool:
-        """Never: the agent learns outside."""
-        return False
-
     def select_action(self, state: State, allowed: Sequence[Action]) -> Action:
         """The agent's action; refused (the step becomes a no-op) when not allowed."""
         if self.next_action is None or self.next_action not in allowed:
             raise _ActionRefused(f"{self.next_action} not allowed in {state.bits}")
         return self.next_action
-
-    def update(self, state: State, action: Action, reward: float, next_state: State,
-               terminated: bool, next_allowed: Sequence[Action]) -> float | None:
-        """Nothing to learn here."""
-        return None
-
-    def state_dict(self) -> dict[str, Any]:
-        """Nothing learnt here."""
-        return {}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Nothing to restore."""
-
-    def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
-        """Nothing to save."""
 
 
 class RogerAttentionEnv(gymnasium.Env):
