@@ -14,13 +14,16 @@ from roger_common.geometry import look_rotation, project_point
 from roger_common.types import CameraModel, EyePose
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import stereo_feature
-from roger_perception.log_filter import log_kernel, log_response
+from roger_perception.log_filter import log_kernel, log_pyramid, log_response
 from roger_perception.segmentation import segment_retina
 from roger_perception.stereo import (
+    RoiSamples,
+    epipolar_direction,
     epipolar_distance,
     fundamental_matrix,
     match_blobs,
     relative_disparities,
+    relative_disparities_batch,
     relief_per_pixel,
     triangulate_pixels,
 )
@@ -112,6 +115,88 @@ def test_the_smoothness_prior_settles_the_aperture_problem() -> None:
     # Without the prior, ambiguous samples wander off, many to the ends of the search
     # range: failed matches (NaN), left out of equation 3.
     assert np.isnan(loose).any() or np.nanmax(np.abs(loose)) > np.abs(s).max()
+
+
+def _tilted_eyes() -> tuple[EyePose, EyePose]:
+    """Both eyes looking straight ahead, the baseline along a diagonal of the retinas:
+    epipolar lines at about 45 degrees."""
+    poses = []
+    for y, z in ((0.08, 0.48), (-0.08, 0.32)):
+        p = np.array([0.0, y, z])
+        poses.append(EyePose(position=p, rotation=look_rotation(p, p + [1.0, 0.0, 0.0])))
+    return poses[0], poses[1]
+
+
+def _batch_matches_single(left_log: list[np.ndarray], right_log: list[np.ndarray],
+                          f: np.ndarray, rois: list[RoiSamples], cfg: PerceptionConfig
+                          ) -> int:
+    """Assert the batch gives, ROI by ROI, what relative_disparities gives; the number of
+    disparities measured (not NaN)."""
+    windows = [max(1, round(cfg.match_window_sigmas * s)) for s in cfg.log_sigmas]
+    got = relative_disparities_batch(left_log, right_log, f, rois, windows,
+                                     cfg.stereo_search_px, cfg.stereo_smoothness)
+    assert len(got) == len(rois)
+    measured = 0
+    for (c_left, c_right, points, magnification), batch in zip(rois, got, strict=True):
+        if len(points) == 0:
+            assert batch.shape == (3, 0)
+            continue
+        single = relative_disparities(left_log, right_log, c_left, c_right, f, points,
+                                      windows, cfg.stereo_search_px, cfg.stereo_smoothness,
+                                      magnification)
+        assert batch.shape == single.shape
+        np.testing.assert_array_equal(np.isnan(batch), np.isnan(single))
+        # Interpolation noise only (the resampling coordinates are rounded differently).
+        np.testing.assert_allclose(batch, single, rtol=0.0, atol=0.02)
+        measured += int(np.isfinite(single).sum())
+    return measured
+
+
+@pytest.mark.parametrize("gaze", [CENTRE_GAZE, (0.7, 0.3, 0.0), (1.1, -0.2, 0.1),
+                                  (0.6, -0.25, 0.3)])
+def test_the_batch_measures_every_roi_as_the_single_roi_function(gaze) -> None:
+    cfg = PerceptionConfig()
+    frame = make_frame(table1_objects("cube"), gaze=gaze, seed=6)
+    left_log, right_log = log_pyramid(frame.left, cfg), log_pyramid(frame.right, cfg)
+    _, left = segment_retina(frame.left, cfg)
+    _, right = segment_retina(frame.right, cfg)
+    matches = match_blobs(left, right, frame.camera, frame.left_pose, frame.right_pose, cfg)
+    assert len(matches) >= 3
+    rng = np.random.default_rng(7)
+    rois: list[RoiSamples] = []
+    for m in matches:
+        u0, v0, u1, v1 = left[m.left].bbox
+        points = np.stack([rng.uniform(u0 - 3, u1 + 3, 24), rng.uniform(v0 - 3, v1 + 3, 24)],
+                          axis=1)
+        rois.append((left[m.left].centroid, right[m.right].centroid, points,
+                     float(rng.uniform(0.8, 1.25))))
+    # A ROI in a corner (windows past the retina's edge: the border is replicated), one
+    # with no samples, and one with a single sample.
+    rois.append(((4.0, 5.0), (2.5, 6.0), rng.uniform(0.0, 12.0, (10, 2)), 1.1))
+    rois.append(((64.0, 64.0), (60.0, 64.0), np.empty((0, 2)), 1.0))
+    rois.append(((40.0, 90.0), (37.0, 91.0), np.array([[42.3, 88.9]]), 0.9))
+    f = fundamental_matrix(frame.camera, frame.left_pose, frame.right_pose)
+    assert _batch_matches_single(left_log, right_log, f, rois, cfg) > 100
+
+
+def test_the_batch_follows_steep_epipolar_lines_and_rounds_ties_alike() -> None:
+    cfg = PerceptionConfig()
+    frame = make_frame(table1_objects("sphere"), gaze=CENTRE_GAZE, seed=8)
+    left_log, right_log = log_pyramid(frame.left, cfg), log_pyramid(frame.right, cfg)
+    rng = np.random.default_rng(9)
+    for (left_pose, right_pose), steep in ((_tilted_eyes(), True), (_parallel_eyes(), False)):
+        f = fundamental_matrix(CAMERA, left_pose, right_pose)
+        rois: list[RoiSamples] = []
+        for _ in range(6):
+            # Integer centroids and samples at pixel centres: along a row (parallel eyes)
+            # the samples lie exactly half a pixel off the centroid, a tie when rounded.
+            c_left = rng.integers(20, 108, 2).astype(float)
+            c_right = c_left + rng.integers(-6, 7, 2)
+            points = c_left + rng.integers(-15, 16, (20, 2)) + 0.5
+            rois.append((tuple(c_left), tuple(c_right), points, float(rng.uniform(0.8, 1.25))))
+            e = epipolar_direction(f.T @ np.array([c_right[0], c_right[1], 1.0]))
+            assert (abs(e[1]) > 0.5) == steep  # more than 30 degrees off the rows, or none
+        assert _batch_matches_single(left_log, right_log, f, rois, cfg) > 100
 
 
 def test_blobs_are_paired_with_the_same_object_in_the_other_retina() -> None:
