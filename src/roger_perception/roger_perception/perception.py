@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -35,6 +36,7 @@ from roger_perception.activation import (
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
     LabelNeighbours,
+    Rim,
     assemble,
     g_max,
     intensity_texture,
@@ -51,7 +53,7 @@ from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
 from roger_perception.stereo import (
     fundamental_matrix,
-    relative_disparities,
+    relative_disparities_batch,
     relief_per_pixel,
 )
 
@@ -155,24 +157,37 @@ class Perception:
             u0, v0, u1, v1 = obj.blob.bbox
             roi_labels[v0:v1, u0:u1][obj.blob.mask] = roi_id + 1
         near = LabelNeighbours(roi_labels)
+        # Two passes over the ROIs around one stereo call for all of them (the disparity
+        # search costs little per sample but much per call). Everything up to the
+        # activation counts as "features", the stereo call included.
+        measured: list[_Measured] = []
         for roi_id, obj in enumerate(seen):
             ta = time.perf_counter()
             bl = obj.blob
-            position = obj.position
             own = roi_id + 1
             rim = rim_samples(bl.mask, bl.bbox, near, own, cfg.samples_m)
-            points = rim.points
             samples = []
             for mag, r in zip(magnitudes, self._vicinity, strict=True):
                 win, (wu, wv) = own_vicinity(mag, roi_labels, own, bl.bbox, r)
-                samples.append(sample_at(win, points - (wu, wv)))
+                samples.append(sample_at(win, rim.points - (wu, wv)))
             intensity, texture = intensity_texture(np.stack(samples), gmax)  # eqs. 1-2
-            depth_l = project_point(frame.camera, frame.left_pose, position)[2]
-            depth_r = project_point(frame.camera, frame.right_pose, position)[2]
-            disparities = relative_disparities(left_log, right_log, bl.centroid,
-                                               obj.right_px, f, points, self._half_windows,
-                                               cfg.stereo_search_px, cfg.stereo_smoothness,
-                                               depth_l / depth_r)
+            depth_l = project_point(frame.camera, frame.left_pose, obj.position)[2]
+            depth_r = project_point(frame.camera, frame.right_pose, obj.position)[2]
+            measured.append(_Measured(rim, intensity, texture, depth_l / depth_r))
+            timings["features"] += time.perf_counter() - ta
+        ta = time.perf_counter()
+        all_disparities = relative_disparities_batch(
+            left_log, right_log, f,
+            [(obj.blob.centroid, obj.right_px, m.rim.points, m.magnification)
+             for obj, m in zip(seen, measured, strict=True)],
+            self._half_windows, cfg.stereo_search_px, cfg.stereo_smoothness)
+        timings["features"] += time.perf_counter() - ta
+        for roi_id, (obj, m, disparities) in enumerate(zip(seen, measured, all_disparities,
+                                                           strict=True)):
+            ta = time.perf_counter()
+            bl = obj.blob
+            position = obj.position
+            rim = m.rim
             metres_per_px = relief_per_pixel(frame.camera, frame.left_pose, frame.right_pose,
                                              position)
             relief = disparities * (metres_per_px if math.isfinite(metres_per_px) else 0.0)
@@ -183,7 +198,7 @@ class Perception:
             stereo, stereo_known = stereo_feature(relief, cfg.s_max_m, cfg.min_stereo_samples)
             weight_kg = self.haptic_memory.weight_near(position)
             weight = None if weight_kg is None else weight_feature(weight_kg, cfg.w_max_kg)
-            feats, known = assemble(intensity, texture, stereo,
+            feats, known = assemble(m.intensity, m.texture, stereo,
                                     size_feature(size_m, self.d_max(frame.camera)),
                                     weight, stereo_known)  # eqs. 3-5
             if rim.own_share < cfg.min_rim_share:
@@ -218,6 +233,23 @@ class Perception:
         self.last_roi_labels = roi_labels
         self.last_timings = timings
         return rois
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """What the first pass of ``Perception.process`` measured of a ROI.
+
+    Attributes:
+        rim: Its samples along its own edge.
+        intensity, texture: Equations 1-2.
+        magnification: Its size in the right retina over its size in the left (the
+            ratio of its depths along the two optical axes).
+    """
+
+    rim: Rim
+    intensity: np.ndarray
+    texture: np.ndarray
+    magnification: float
 
 
 def _check_frame(frame: StereoFrame) -> None:
