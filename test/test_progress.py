@@ -31,6 +31,26 @@ def test_plain_lines_every_tenth_and_the_final_line_is_the_owners():
     assert out.getvalue().splitlines() == lines
 
 
+def test_plain_lines_come_at_least_every_30_s_while_steps_are_done():
+    out, now = io.StringIO(), [0.0]
+    bar = ProgressBar(2000, "run w, until complete", stream=out, clock=lambda: now[0])
+    bar.update(0)
+    for done in range(1, 150):
+        now[0] += 0.5  # 150 cycles in 75 s: never a tenth of the budget
+        bar.update(done)
+    bar.close(149, "complete")
+    lines = out.getvalue().splitlines()
+    assert [ln.split(": ")[1].split("/")[0] for ln in lines] == ["0", "60", "120", "149"]
+    assert lines[-1].endswith("149/2000 cycles complete")
+    # No new step: no line, however long it took.
+    out2 = io.StringIO()
+    still = ProgressBar(2000, "stalled", stream=out2, clock=lambda: now[0])
+    still.update(5)
+    now[0] += 100.0
+    still.update(5)
+    assert len(out2.getvalue().splitlines()) == 1
+
+
 def test_few_steps_print_every_step_once():
     out = io.StringIO()
     with ProgressBar(4, "compare", "runs", stream=out) as bar:

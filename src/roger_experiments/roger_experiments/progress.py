@@ -9,6 +9,8 @@ what its owner passes to :meth:`ProgressBar.close`, so it can be the numbers the
 from __future__ import annotations
 
 import sys
+import time
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any, TextIO
 
@@ -26,6 +28,9 @@ from rich.progress import (
 PLAIN_STEP = 0.1
 #: Without a terminal, totals up to this many steps print every step.
 PLAIN_EVERY_STEP = 20
+#: Without a terminal, a line at least this often (wall seconds) while steps are done: a
+#: run with a large budget (--until-complete) may end long before its first tenth.
+PLAIN_EVERY_S = 30.0
 
 
 class _Live:
@@ -69,10 +74,12 @@ class ProgressBar:
         enabled: False shows nothing (``--quiet``).
         stream: Where it goes (standard error by default, so results on standard output
             stay clean for pipes).
+        clock: Wall seconds (for the plain lines' pace).
     """
 
     def __init__(self, total: int, description: str, unit: str = "cycles", *,
-                 enabled: bool = True, stream: TextIO | None = None) -> None:
+                 enabled: bool = True, stream: TextIO | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.total, self.description, self.unit = max(1, int(total)), description, unit
         self.enabled = enabled
         self.stream = stream if stream is not None else sys.stderr
@@ -81,6 +88,8 @@ class ProgressBar:
         self._task: TaskID | None = None
         self._printed: tuple[int, str] | None = None
         self._bucket = -1
+        self._clock = clock
+        self._printed_at = clock()
         if enabled:
             console = Console(file=self.stream)
             if console.is_terminal:
@@ -106,8 +115,9 @@ class ProgressBar:
             _Live.progress.update(self._task, completed=min(self.done, self.total), info=info)
             return
         bucket = int(min(1.0, self.done / self.total) / PLAIN_STEP)
-        every = self.total <= PLAIN_EVERY_STEP and (self._printed is None
-                                                    or self._printed[0] != self.done)
+        new_step = self._printed is None or self._printed[0] != self.done
+        every = new_step and (self.total <= PLAIN_EVERY_STEP
+                              or self._clock() - self._printed_at >= PLAIN_EVERY_S)
         if bucket > self._bucket or every:
             self._bucket = max(self._bucket, bucket)
             self._print()
@@ -116,6 +126,7 @@ class ProgressBar:
         if self._printed == (self.done, self.info):
             return
         self._printed = (self.done, self.info)
+        self._printed_at = self._clock()
         self.stream.write(self.line() + "\n")
         self.stream.flush()
 
