@@ -13,6 +13,12 @@ from perception_synth import CENTRE_GAZE, SPREAD, Shape, make_frame, nearest_obj
 
 from roger_common.errors import MessageError
 from roger_common.types import HapticReading
+from roger_perception.activation import (
+    MotionView,
+    motion_image,
+    visual_motion,
+    visual_motion_batch,
+)
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import absorb_slivers, adjacency, group_fragments
 from roger_perception.perception import Perception
@@ -284,3 +290,32 @@ def test_a_sphere_before_a_box_of_about_its_grey_gives_two_pure_rois() -> None:
             assert shares.max() >= 0.85 and shares.min() < 0.15, (seed, shares)
         near = min(rois, key=lambda r: r.position[0])
         assert np.hypot(near.position[0] - 0.62, near.position[1] - 0.03) < 0.03
+
+
+def test_batched_visual_motion_equals_the_motion_of_each_roi_alone() -> None:
+    cfg = PerceptionConfig()
+    objects = table1_objects("cylinder")
+    moved = list(objects)
+    moved[1] = dataclasses.replace(objects[1], x=objects[1].x + 0.05)
+    before = make_frame(objects, gaze=CENTRE_GAZE, seed=15)
+    after = make_frame(moved, gaze=(0.9, 0.06, 0.04), seed=16)  # the eyes moved too
+    previous = MotionView(motion_image(before.left, cfg), before.camera, before.left_pose)
+    image = motion_image(after.left, cfg)
+    rois = []
+    for i in range(len(moved)):
+        rr, cc = np.nonzero(after.left_labels == i)
+        bbox = (int(cc.min()), int(rr.min()), int(cc.max()) + 1, int(rr.max()) + 1)
+        mask = after.left_labels[bbox[1]:bbox[3], bbox[0]:bbox[2]] == i
+        rois.append((mask, bbox, float(np.linalg.norm(np.asarray(moved[i].centre)
+                                                      - after.left_pose.position))))
+    thin = np.ones((1, 6), bool)  # too thin to erode
+    rois += [(thin, (60, 5, 66, 6), 1.0), (rois[0][0], rois[0][1], float("nan")),
+             (rois[2][0], rois[2][1], 0.05)]  # no depth; re-projected out of view
+    alone = [visual_motion(image, m, b, d, after.camera, after.left_pose, previous, cfg)
+             for m, b, d in rois]
+    batched = visual_motion_batch(image, rois, after.camera, after.left_pose, previous, cfg)
+    assert batched == alone
+    assert alone[1] > 0.3 and alone[-2] == 0.0  # the moved object; the one without depth
+    assert visual_motion_batch(image, rois, after.camera, after.left_pose, None, cfg) == [
+        0.0] * len(rois)
+    assert visual_motion_batch(image, [], after.camera, after.left_pose, previous, cfg) == []

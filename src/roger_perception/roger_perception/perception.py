@@ -31,7 +31,7 @@ from roger_perception.activation import (
     is_mapped,
     motion_image,
     pre_attentive_activation,
-    visual_motion,
+    visual_motion_batch,
 )
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
@@ -182,6 +182,11 @@ class Perception:
              for obj, m in zip(seen, measured, strict=True)],
             self._half_windows, cfg.stereo_search_px, cfg.stereo_smoothness)
         timings["features"] += time.perf_counter() - ta
+        ta = time.perf_counter()
+        motions = visual_motion_batch(
+            moving, [(obj.blob.mask, obj.blob.bbox, obj.depth) for obj in seen],
+            frame.camera, frame.left_pose, self._previous_view, cfg)
+        timings["activation"] += time.perf_counter() - ta
         for roi_id, (obj, m, disparities) in enumerate(zip(seen, measured, all_disparities,
                                                            strict=True)):
             ta = time.perf_counter()
@@ -213,8 +218,7 @@ class Perception:
                 feats[SIZE_INDEX] = 0.0
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
-            motion = visual_motion(moving, bl.mask, bl.bbox, obj.depth, frame.camera,
-                                   frame.left_pose, self._previous_view, cfg)
+            motion = motions[roi_id]
             tactile = 1.0 if touches(frame.haptic, position, cfg.haptic_radius_m) else 0.0
             mapped = is_mapped(position, mapped_positions, cfg.mapped_radius_m)
             activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
