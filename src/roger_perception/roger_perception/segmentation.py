@@ -143,23 +143,27 @@ def fragment_labels(image: np.ndarray, fg: np.ndarray, bg: float, cfg: Perceptio
 _MIN_NOTCH_PIXELS = 3
 
 
+#: Offsets of the eight neighbours of a pixel (``_closest_neighbour``), as (8, 1) columns.
+_NEIGHBOUR_ROWS = np.array([[-1], [-1], [-1], [0], [0], [1], [1], [1]])
+_NEIGHBOUR_COLS = np.array([[-1], [0], [1], [-1], [1], [-1], [0], [1]])
+
+
 def _closest_neighbour(labels: np.ndarray, smooth: np.ndarray, where: np.ndarray
                        ) -> np.ndarray:
     """For the pixels ``where``, the label of the 8-neighbour (labelled > 0) whose
     intensity is closest to theirs; 0 when none is labelled."""
     rows, cols = np.nonzero(where)
     h, w = labels.shape
-    best = np.zeros(rows.size, np.int32)
-    best_diff = np.full(rows.size, np.inf, np.float32)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            if dr == 0 and dc == 0:
-                continue
-            r, c = np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)
-            lab = labels[r, c]
-            diff = np.abs(smooth[r, c] - smooth[rows, cols])
-            better = (lab > 0) & (diff < best_diff)
-            best[better], best_diff[better] = lab[better], diff[better]
+    # All eight neighbours at once; argmin takes the first of equally close ones, in the
+    # order below (row offset, then column offset).
+    r = np.clip(rows[None] + _NEIGHBOUR_ROWS, 0, h - 1)
+    c = np.clip(cols[None] + _NEIGHBOUR_COLS, 0, w - 1)
+    lab = labels[r, c]
+    diff = np.abs(smooth[r, c] - smooth[rows, cols][None])
+    diff[lab <= 0] = np.inf
+    pick = np.argmin(diff, axis=0)
+    take = np.arange(rows.size)
+    best = np.where(lab[pick, take] > 0, lab[pick, take], 0).astype(np.int32)
     return best
 
 
@@ -261,8 +265,7 @@ def split_at_notches(labels: np.ndarray, image: np.ndarray, ground: np.ndarray, 
         The new labels (new fragments numbered after the largest label).
     """
     out = labels.copy()
-    grey = np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
-                   * (255.0 / 0.5), 0, 255).astype(np.uint8)
+    grey: np.ndarray | None = None  # the watershed's image, made for the first cut
     boxes = label_boxes(out)
     height, width = out.shape
     sizes = np.bincount(out.ravel())
@@ -293,6 +296,9 @@ def split_at_notches(labels: np.ndarray, image: np.ndarray, ground: np.ndarray, 
         markers[mask & (side < -keep)] = 2
         if costs is not None:
             _seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0), sigmas)
+        if grey is None:
+            grey = np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
+                           * (255.0 / 0.5), 0, 255).astype(np.uint8)
         g = grey[y0:y1, x0:x1]
         cv2.watershed(cv2.merge([g, g, g]), markers)
         part = mask & (markers == 2)
@@ -334,7 +340,10 @@ def label_boxes(labels: np.ndarray) -> dict[int, tuple[int, int, int, int]]:
     if idx.size == 0:
         return {}
     lab = flat[idx]
-    order = np.argsort(lab, kind="stable")
+    # A stable sort of 16-bit keys is a radix sort: linear in the pixels, and the same
+    # order as the stable sort of the labels themselves.
+    small = int(lab.min()) >= 0 and int(lab.max()) < 1 << 16
+    order = np.argsort(lab.astype(np.uint16) if small else lab, kind="stable")
     lab, idx = lab[order], idx[order]
     rows, cols = idx // labels.shape[1], idx % labels.shape[1]
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
