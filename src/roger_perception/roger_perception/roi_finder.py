@@ -28,6 +28,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -155,9 +156,14 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     return out, labels
 
 
+@functools.lru_cache(maxsize=4)
 def _checkerboard(shape: tuple[int, ...]) -> np.ndarray:
+    """Every other pixel of an image of ``shape`` (read-only: it is shared, one per
+    retina size)."""
     r, c = np.indices(shape[:2])
-    return (r + c) % 2 == 0
+    board = (r + c) % 2 == 0
+    board.flags.writeable = False
+    return board
 
 
 def _place(blob: Blob, depth: float, cost: float, sweep: PlaneSweep, width: int
