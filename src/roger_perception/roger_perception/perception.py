@@ -186,6 +186,8 @@ class Perception:
         motions = visual_motion_batch(
             moving, [(obj.blob.mask, obj.blob.bbox, obj.depth) for obj in seen],
             frame.camera, frame.left_pose, self._previous_view, cfg)
+        # The mapped positions as one array, converted once for all ROIs.
+        mapped_array = np.asarray(mapped_positions, float).reshape(-1, 3)
         timings["activation"] += time.perf_counter() - ta
         for roi_id, (obj, m, disparities) in enumerate(zip(seen, measured, all_disparities,
                                                            strict=True)):
@@ -220,7 +222,7 @@ class Perception:
             retinal_size = bl.area / image_area
             motion = motions[roi_id]
             tactile = 1.0 if touches(frame.haptic, position, cfg.haptic_radius_m) else 0.0
-            mapped = is_mapped(position, mapped_positions, cfg.mapped_radius_m)
+            mapped = is_mapped(position, mapped_array, cfg.mapped_radius_m)
             activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
                                                   tactile, mapped, cfg)
             rois.append(Roi(
