@@ -22,7 +22,7 @@ from roger_perception.activation import (
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import absorb_slivers, adjacency, group_fragments
 from roger_perception.perception import Perception
-from roger_perception.plane_sweep import SampledCosts
+from roger_perception.plane_sweep import SampledCosts, region_curves
 from roger_perception.segmentation import (
     contour_samples,
     ground_notches,
@@ -319,3 +319,17 @@ def test_batched_visual_motion_equals_the_motion_of_each_roi_alone() -> None:
     assert visual_motion_batch(image, rois, after.camera, after.left_pose, None, cfg) == [
         0.0] * len(rois)
     assert visual_motion_batch(image, [], after.camera, after.left_pose, previous, cfg) == []
+
+
+def test_a_region_curve_depends_only_on_its_own_pixels() -> None:
+    # find_objects recomputes the curves of poorly supported objects from their pixels
+    # alone; that must give the columns a run over every pixel gives.
+    rng = np.random.default_rng(17)
+    costs = rng.random((40, 3000), dtype=np.float32)
+    labels = rng.integers(0, 9, 3000)
+    everything, support = region_curves(costs, labels, np.ones(3000), 8)
+    assert support.sum() == 3000
+    some = np.isin(labels, [2, 5, 8])
+    alone, _ = region_curves(costs[:, some], labels[some], np.ones(int(some.sum())), 8)
+    assert np.array_equal(alone[:, [2, 5, 8]], everything[:, [2, 5, 8]])
+    assert not alone[:, [1, 3]].any()

@@ -122,8 +122,12 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     weights = (~near_other_label(region, cfg.occlusion_band_px))[rows, cols].astype(float)
     curves, support = region_curves(sampled.costs, region_lab, weights, n)
     low = support < cfg.min_depth_pixels  # all near others: use every pixel
-    if low.any():
-        curves_all, _ = region_curves(sampled.costs, region_lab, np.ones(len(lab)), n)
+    low[0] = False  # the ground's curve is not used
+    # Only the pixels of those objects: another object's pixels do not change their sums.
+    need = low[region_lab]
+    if need.any():
+        curves_all, _ = region_curves(sampled.costs[:, need], region_lab[need],
+                                      np.ones(int(need.sum())), n)
         curves[:, low] = curves_all[:, low]
     depth, cost, _ = best_depths(curves, sweep.inverse_depths)
 
