@@ -24,6 +24,7 @@ from roger_perception.grouping import absorb_slivers, adjacency, group_fragments
 from roger_perception.perception import Perception
 from roger_perception.plane_sweep import SampledCosts, region_curves
 from roger_perception.segmentation import (
+    _median,
     contour_samples,
     ground_notches,
     segment_retina,
@@ -333,3 +334,13 @@ def test_a_region_curve_depends_only_on_its_own_pixels() -> None:
     alone, _ = region_curves(costs[:, some], labels[some], np.ones(int(some.sum())), 8)
     assert np.array_equal(alone[:, [2, 5, 8]], everything[:, [2, 5, 8]])
     assert not alone[:, [1, 3]].any()
+
+
+def test_the_ground_median_is_numpy_median() -> None:
+    rng = np.random.default_rng(18)
+    for n in (1, 2, 3, 10, 501, 3000):
+        values = rng.random(n).astype(np.float32)
+        ties = np.round(values * 5).astype(np.float32) / 7  # many equal values
+        for v in (values, ties):
+            got, want = _median(v), np.median(v)
+            assert got == want and got.dtype == want.dtype
