@@ -233,7 +233,8 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
         xa, xb = max(x0, 0), min(x0 + side.shape[1], w)
         crop = side[:, xa - x0:xb - x0]
         others = region[v0:v1, xa:xb]
-        if ((others > 0) & (others != region[v0 + band[0], u0 + ends[band[0]]]) & crop).any():
+        others = others[crop]
+        if ((others > 0) & (others != region[v0 + band[0], u0 + ends[band[0]]])).any():
             return None  # another object beside it: hidden there, or cut
         curve, n = sampled.curve(crop, v0, xa)
         if n < cfg.min_depth_pixels // 2:
@@ -243,7 +244,7 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
         if rise < cfg.min_depth_rise:
             return None
         u = float(u0 + extreme + (0.0 if outward < 0 else 1.0))
-        v = float(v0 + band.mean() + 0.5)
+        v = float(v0 + float(band.sum()) / band.size + 0.5)  # band.mean(), without its set-up
         points.append(sweep.point(u, v, side_depth))
     return 0.5 * (points[0] + points[1])
 
