@@ -195,14 +195,17 @@ def visual_motion_batch(image: np.ndarray,
     changed = np.abs(image[rows[use], cols[use]] - before) > cfg.motion_threshold
     counts = np.bincount(owner[use], minlength=len(rois))
     moved = np.bincount(owner[use], weights=changed, minlength=len(rois))
-    for k in np.flatnonzero(counts):
-        out[int(k)] = float(moved[k] / counts[k])
+    for j in np.flatnonzero(counts).tolist():
+        out[j] = float(moved[j] / counts[j])
     return out
 
 
-def is_mapped(position: Sequence[float], mapped_positions: Sequence[Sequence[float]],
+def is_mapped(position: Sequence[float],
+              mapped_positions: Sequence[Sequence[float]] | np.ndarray,
               radius: float) -> bool:
-    """Mapping status: True when a mapped position lies within ``radius`` metres."""
+    """Mapping status: True when a mapped position lies within ``radius`` metres.
+
+    ``mapped_positions`` may be an (N, 3) array already (one conversion per frame)."""
     if len(mapped_positions) == 0:
         return False
     d = np.linalg.norm(np.asarray(mapped_positions, float).reshape(-1, 3)
