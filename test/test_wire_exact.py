@@ -36,9 +36,10 @@ def test_roi_float_fields_round_trip_exactly() -> None:
                 features=rng.random(FEATURE_DIM).astype(np.float32),
                 known=np.ones(FEATURE_DIM, bool), activation=float(rng.random()),
                 retinal_size=float(rng.random()), mean_intensity=float(rng.random()),
-                motion=float(rng.random()), tactile=1.0 / 3.0) for i in range(4)]
+                motion=float(rng.random()), tactile=1.0 / 3.0, mapped=i % 2 == 0,
+                cut=i % 3 == 0, size_m=float(rng.random())) for i in range(4)]
     for a, b in zip(rois, msg_to_rois(rois_to_msg(rois, 1.0, 3)), strict=True):
         for name in ("position", "activation", "retinal_size", "mean_intensity", "motion",
-                     "tactile"):
+                     "tactile", "mapped", "cut", "size_m"):
             assert getattr(a, name) == getattr(b, name), name
         assert np.array_equal(a.features, b.features)
