@@ -116,10 +116,23 @@ def assert_nothing_lost(out: Path, cycles: int) -> None:
         == cycles
     assert metrics["map_updates"] == metrics["positive_identifications"] \
         + metrics["new_objects"] + metrics["remaps"]
-    # Every stored object is in the memory file, once.
-    stored = sum(1 for r in rows if r[7] == "stored")
+    # Every recorded store is in the memory file, and no object is stored twice.
+    stored_at = [int(r[9]) for r in rows if r[7] == "stored"]
+    stored = len(stored_at)
     assert stored == metrics["new_objects"] >= 1
-    assert load_snapshot(out / "memory.pt").n_addresses == stored
+    snapshot = load_snapshot(out / "memory.pt")
+    assert len(set(stored_at)) == stored and max(stored_at) < snapshot.n_addresses
+    # Each address was stored once: its store looks appear under no other address.
+    store_looks = snapshot.exemplars[snapshot.stored]
+    assert len(np.unique(store_looks, axis=0)) == len(store_looks)
+    assert set(snapshot.addresses[snapshot.stored].tolist()) == set(range(snapshot.n_addresses))
+    # A STORE in flight when the attention node died may have been made by the memory: the
+    # object is then in the file without a recorded "stored" cycle (the redone cycle starts
+    # from a fresh scan; the object is identified when seen again: docs/reliability.md).
+    # At most one such object per death of the attention node.
+    deaths = json.loads((out / "run_status.json").read_text())["deaths"]
+    in_flight = sum(1 for d in deaths if d["node"] == "attention")
+    assert stored <= snapshot.n_addresses <= stored + in_flight, (snapshot.n_addresses, stored)
     # The Q-table is the sum of every recorded update: none lost to a restart.
     table = json.loads((out / "qtable.json").read_text())
     q = np.full((6, 4), float(table["initial_q"]))
