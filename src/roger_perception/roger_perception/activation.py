@@ -64,6 +64,30 @@ def motion_image(left: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), cfg.motion_blur_px)
 
 
+def _into_previous(u: np.ndarray, v: np.ndarray, depth: float | np.ndarray,
+                   camera: CameraModel, pose: EyePose,
+                   previous: MotionView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel centres (u, v) of this left retina, put back in space at ``depth`` (one value
+    or one per pixel) and projected into the previous frame's left eye.
+
+    Returns:
+        The previous retina's array coordinates (up, vp) and whether each point lies ahead
+        of that eye and inside its retina.
+    """
+    ray = np.stack([(u - camera.width / 2.0) / camera.focal_px,
+                    (v - camera.height / 2.0) / camera.focal_px, np.ones(u.shape)])
+    points = pose.rotation @ (ray * depth) + np.asarray(pose.position, float)[:, None]
+    local = previous.pose.rotation.T @ (points - np.asarray(previous.pose.position,
+                                                            float)[:, None])
+    ahead = local[2] > 1e-6
+    z = np.where(ahead, local[2], 1.0)
+    pcam = previous.camera
+    up = pcam.focal_px * local[0] / z + pcam.width / 2.0 - 0.5   # array coordinates
+    vp = pcam.focal_px * local[1] / z + pcam.height / 2.0 - 0.5
+    seen = ahead & (up >= 0) & (up <= pcam.width - 1) & (vp >= 0) & (vp <= pcam.height - 1)
+    return up, vp, seen
+
+
 def visual_motion(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int, int],
                   depth: float, camera: CameraModel, pose: EyePose,
                   previous: MotionView | None, cfg: PerceptionConfig) -> float:
@@ -102,19 +126,8 @@ def visual_motion(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int
     if rows.size == 0:
         return 0.0
     u0, v0 = bbox[0], bbox[1]
-    u = cols + u0 + 0.5   # pixel centres (geometry.camera_ray)
-    v = rows + v0 + 0.5
-    ray = np.stack([(u - camera.width / 2.0) / camera.focal_px,
-                    (v - camera.height / 2.0) / camera.focal_px, np.ones(u.shape)])
-    points = pose.rotation @ (ray * depth) + np.asarray(pose.position, float)[:, None]
-    local = previous.pose.rotation.T @ (points - np.asarray(previous.pose.position,
-                                                            float)[:, None])
-    ahead = local[2] > 1e-6
-    z = np.where(ahead, local[2], 1.0)
-    pcam = previous.camera
-    up = pcam.focal_px * local[0] / z + pcam.width / 2.0 - 0.5   # array coordinates
-    vp = pcam.focal_px * local[1] / z + pcam.height / 2.0 - 0.5
-    seen = ahead & (up >= 0) & (up <= pcam.width - 1) & (vp >= 0) & (vp <= pcam.height - 1)
+    up, vp, seen = _into_previous(cols + u0 + 0.5, rows + v0 + 0.5, depth, camera, pose,
+                                  previous)
     if seen.mean() < cfg.motion_min_evidence:
         return 0.0
     before = cv2.remap(previous.image, up[seen].astype(np.float32)[None, :],
@@ -166,20 +179,8 @@ def visual_motion_batch(image: np.ndarray,
         return out
     rows, cols = np.concatenate(all_rows), np.concatenate(all_cols)
     owner = np.concatenate(owners)
-    u = cols + 0.5   # pixel centres (geometry.camera_ray)
-    v = rows + 0.5
-    ray = np.stack([(u - camera.width / 2.0) / camera.focal_px,
-                    (v - camera.height / 2.0) / camera.focal_px, np.ones(u.shape)])
-    points = (pose.rotation @ (ray * np.concatenate(all_depths))
-              + np.asarray(pose.position, float)[:, None])
-    local = previous.pose.rotation.T @ (points - np.asarray(previous.pose.position,
-                                                            float)[:, None])
-    ahead = local[2] > 1e-6
-    z = np.where(ahead, local[2], 1.0)
-    pcam = previous.camera
-    up = pcam.focal_px * local[0] / z + pcam.width / 2.0 - 0.5   # array coordinates
-    vp = pcam.focal_px * local[1] / z + pcam.height / 2.0 - 0.5
-    seen = ahead & (up >= 0) & (up <= pcam.width - 1) & (vp >= 0) & (vp <= pcam.height - 1)
+    up, vp, seen = _into_previous(cols + 0.5, rows + 0.5, np.concatenate(all_depths),
+                                  camera, pose, previous)
     total = np.bincount(owner, minlength=len(rois))
     evidence = np.bincount(owner, weights=seen, minlength=len(rois)) / np.maximum(total, 1)
     use = seen & (evidence >= cfg.motion_min_evidence)[owner]
