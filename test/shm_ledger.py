@@ -34,6 +34,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from roger_bringup.orchestrator import shm_group as group_of  # one rule for both
+from roger_bringup.orchestrator import shm_holders
 
 SHM = Path("/dev/shm")
 #: RTPS well-known ports: PB + DG * domain + offset (offset < DG).
@@ -72,33 +73,7 @@ def _is_dds(name: str) -> bool:
 
 def holders() -> dict[str, set[int]]:
     """Fast DDS files in /dev/shm by the live processes that have them open or mapped."""
-    held: dict[str, set[int]] = {}
-    for pid_dir in Path("/proc").iterdir():
-        if not pid_dir.name.isdigit():
-            continue
-        pid = int(pid_dir.name)
-        names = []
-        try:
-            fds = list((pid_dir / "fd").iterdir())
-        except OSError:
-            fds = []
-        for fd in fds:
-            try:
-                target = os.readlink(fd)
-            except OSError:  # closed meanwhile (the listing's own descriptor, say)
-                continue
-            if target.startswith("/dev/shm/"):
-                names.append(target[len("/dev/shm/"):])
-        try:
-            for line in (pid_dir / "maps").read_text().splitlines():
-                if "/dev/shm/" in line:
-                    names.append(line.split("/dev/shm/", 1)[1].strip())
-        except OSError:
-            pass
-        for name in names:
-            if _is_dds(name):
-                held.setdefault(name, set()).add(pid)
-    return held
+    return {name: pids for name, pids in shm_holders().items() if _is_dds(name)}
 
 
 def process_tree(roots: Iterable[int]) -> set[int]:

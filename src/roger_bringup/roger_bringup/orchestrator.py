@@ -109,13 +109,16 @@ def shm_group(name: str) -> str:
     return base
 
 
-def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
-    """Files in /dev/shm that a live process (other than ``ignore``) has open or mapped."""
-    held: set[str] = set()
+def shm_holders(ignore: list[int] | tuple[int, ...] = ()) -> dict[str, set[int]]:
+    """Files in /dev/shm by the live processes (other than ``ignore``) that have them open
+    or mapped."""
+    held: dict[str, set[int]] = {}
     skip = {str(p) for p in ignore}
     for pid_dir in Path("/proc").iterdir():
         if not pid_dir.name.isdigit() or pid_dir.name in skip:
             continue
+        pid = int(pid_dir.name)
+        names = []
         # One descriptor closing while it is listed (the listing's own, in this process)
         # must not hide the process's other holds.
         try:
@@ -128,15 +131,22 @@ def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
             except OSError:
                 continue
             if target.startswith("/dev/shm/"):
-                held.add(target[len("/dev/shm/"):])
+                names.append(target[len("/dev/shm/"):])
         try:
             maps = (pid_dir / "maps").read_text()
         except OSError:
-            continue
+            maps = ""
         for line in maps.splitlines():
             if "/dev/shm/" in line:
-                held.add(line.split("/dev/shm/", 1)[1].strip())
+                names.append(line.split("/dev/shm/", 1)[1].strip())
+        for name in names:
+            held.setdefault(name, set()).add(pid)
     return held
+
+
+def held_shm_files(ignore: list[int] | tuple[int, ...] = ()) -> set[str]:
+    """Files in /dev/shm that a live process (other than ``ignore``) has open or mapped."""
+    return set(shm_holders(ignore))
 
 
 def clean_shm(before: set[tuple[str, int]], pids: list[int]) -> list[str]:
