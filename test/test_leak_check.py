@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from conftest import SESSION_DOMAIN, free_domain
-from shm_ledger import SHM, ShmLedger, domain_of, group_of, holders, shm_files
+from shm_ledger import SHM, ShmLedger, domain_of, group_of, holders, process_tree, shm_files
 
 HERE = Path(__file__).resolve().parent
 
@@ -87,7 +87,9 @@ class StandIn:
         return {group_of(name) for name, pids in holders().items() if pids & set(self.pids)}
 
     def end(self) -> None:
-        for pid in self.pids:
+        # Its participants whether or not they said their pid (a launcher that timed out
+        # before they did must not leave them running).
+        for pid in set(self.pids) | (process_tree([self.proc.pid]) - {self.proc.pid}):
             try:
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
