@@ -12,26 +12,34 @@ score every ROI of every frame (here only; the robot never sees them):
   their pixels (over-segmentation: one object, two places in the map).
 
 The known merges are kept as strict xfails (docs/perception.md, "Limits"): two boxes on
-inspection.yaml whose outlines line up one behind the other, and a prism seen above a
-box's top face on two_rows.yaml.
+inspection.yaml whose outlines line up one behind the other (the right retina's view,
+``roger_perception.binocular``, splits them in all frames but one), and a prism seen above
+a box's top face on two_rows.yaml.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 
+import numpy as np
 import pytest
 from conftest import WORLDS
 
+from roger_common.types import Action, Goal
 from roger_experiments.feature_report import MERGE_SHARE, Look, collect_looks
+from roger_perception.config import PerceptionConfig
+from roger_perception.perception import Perception
+from roger_sim.simulator import Simulator
 from roger_sim.world import load_world
 
 SHIPPED = sorted(p.stem for p in WORLDS.glob("*.yaml"))
 #: Worlds with merges this perception still makes, and why (docs/perception.md, "Limits").
 KNOWN_MERGES = {
-    "inspection": "c03_2 and c07_0: two 0.1 m boxes one behind the other whose outlines "
-                  "line up (no notch) and whose surfaces lie 3-5 cm apart at 1 m (a "
-                  "sub-pixel step for stereo)",
+    "inspection": "1 of ~1250 ROIs: c03_2 and c07_0, two boxes whose outlines line up one "
+                  "behind the other; the left retina joined c03_2's top face to c07_0 and "
+                  "kept its front face apart, so c03_2's group in the right retina holds "
+                  "parts of two left groups and cannot tell where either ends "
+                  "(roger_perception.binocular)",
     "two_rows": "pri_b above box_a's top face: the boundary runs along the rows and their "
                 "outlines meet without a notch",
 }
@@ -72,3 +80,28 @@ def test_every_shipped_world_is_scored() -> None:
     assert {"inspection", "touching", "two_rows", "shapes", "categories", "table1"} <= set(
         SHIPPED)
     assert MERGE_SHARE == 0.15  # the share roger features reports merges with
+
+
+def _holders(perception: Perception, frame, roi_id: int) -> set[str]:
+    truth = frame.left_labels[perception.last_roi_labels == roi_id + 1]
+    counts = np.bincount(truth[truth >= 0], minlength=len(frame.label_names))
+    return {frame.label_names[k] for k in np.flatnonzero(counts >= MERGE_SHARE * truth.size)}
+
+
+def test_the_right_retina_splits_two_boxes_whose_outlines_line_up_in_the_left() -> None:
+    # inspection.yaml's c03_2 (0.705, 0.388) stands 0.22 m in front of c07_0 along the left
+    # eye's line of sight: no notch between them in the left retina. Without the right
+    # retina's view one ROI holds both in each of three gazes; with it, none does.
+    world = load_world(WORLDS / "inspection.yaml")
+    targets = ((0.705, 0.388, 0.05), (0.919, 0.442, 0.05), (0.8, 0.4, 0.0))
+    with Simulator(world, seed=0) as sim:
+        frames = [sim.run_goal(Goal(i + 1, Action.ATTENTION_SHIFT, t))[1]
+                  for i, t in enumerate(targets)]
+    pair = {"c03_2", "c07_0"}
+    for split in (False, True):
+        perception = Perception(PerceptionConfig(binocular_split=split))
+        merged = 0
+        for frame in frames:
+            rois = perception.process(frame)
+            merged += sum(pair <= _holders(perception, frame, r.roi_id) for r in rois)
+        assert merged == (0 if split else len(frames)), (split, merged)

@@ -94,6 +94,9 @@ class PerceptionConfig:
         notch_px: Deepest concave notch of ground (pixels, from the convex hull) the
             union of two fragments of one object may hold: the image of a convex shape
             is convex up to digitisation.
+        binocular_split: Split a left-retina object whose fragments fall, at its depth,
+            on different objects of the right retina (objects one behind the other whose
+            outlines line up in the left eye; ``roger_perception.binocular``).
         motion_threshold: Change of a pixel's smoothed intensity, after Roger's own eye and
             neck motion is compensated, that counts as visual motion: half of
             ``fg_threshold``, since an object is at least that much brighter than the
@@ -144,6 +147,7 @@ class PerceptionConfig:
     min_stereo_samples: int = 8
     depth_sigmas: float = 3.0
     notch_px: float = 1.5
+    binocular_split: bool = True
     motion_threshold: float = 0.03
     motion_blur_px: float = 1.0
     motion_min_evidence: float = 0.5

@@ -108,6 +108,14 @@ class PlaneSweep:
         mv += np.float32(cam.height / 2.0 - 0.5)
         return mu, mv, den
 
+    def right_pixels(self, u: np.ndarray, v: np.ndarray, depth: float | np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Right-retina pixels (u, v) of left pixels (u, v) at ``depth`` (one for all, or
+        one per pixel), and whether each lies in front of the right eye."""
+        mu, mv, den = self._map(np.asarray(u, float), np.asarray(v, float),
+                                1.0 / np.asarray(depth, float))
+        return mu + np.float32(0.5), mv + np.float32(0.5), den > 0
+
     def right_pixel(self, u: float, v: float, depth: float) -> tuple[float, float]:
         """Right-retina pixel (u, v) of the left pixel (u, v) at ``depth`` (left optical axis)."""
         mu, mv, _ = self._map(np.array([u]), np.array([v]), 1.0 / depth)

@@ -36,6 +36,7 @@ import numpy as np
 
 from roger_common.geometry import as_point
 from roger_common.types import StereoFrame
+from roger_perception.binocular import group_labels, split_by_other_eye
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import (
     absorb_slivers,
@@ -112,24 +113,18 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
 
     # 3. objects: touching fragments join unless their union holds a notch of ground
     owner = group_fragments(frag, ground, adjacency(frag), cfg.min_roi_pixels, cfg.notch_px)
-    lut = np.zeros(n + 1, np.int32)
-    for i, g in owner.items():
-        lut[i] = g
-    region = lut[frag]
-    region_lab = lut[lab]
-
+    region, region_lab = _regions(owner, frag, lab, n)
     # 4. depth of every object
-    weights = (~near_other_label(region, cfg.occlusion_band_px))[rows, cols].astype(float)
-    curves, support = region_curves(sampled.costs, region_lab, weights, n)
-    low = support < cfg.min_depth_pixels  # all near others: use every pixel
-    low[0] = False  # the ground's curve is not used
-    # Only the pixels of those objects: another object's pixels do not change their sums.
-    need = low[region_lab]
-    if need.any():
-        curves_all, _ = region_curves(sampled.costs[:, need], region_lab[need],
-                                      np.ones(int(need.sum())), n)
-        curves[:, low] = curves_all[:, low]
-    depth, cost, _ = best_depths(curves, sweep.inverse_depths)
+    curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep, cfg, n)
+    # 5. the right retina's view: a group whose fragments fall on two of its groups there
+    if cfg.binocular_split and len(set(owner.values())) < len(owner):
+        split = split_by_other_eye(frag, owner, depth, sweep,
+                                   group_labels(frame.right, cfg), cfg.min_roi_pixels)
+        if split != owner:
+            owner = split
+            region, region_lab = _regions(owner, frag, lab, n)
+            curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep,
+                                          cfg, n)
 
     width = frame.camera.width
     objects: list[tuple[int, SeenObject]] = []
@@ -158,6 +153,35 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
         u0, v0, u1, v1 = o.blob.bbox
         labels[v0:v1, u0:u1][o.blob.mask] = k + 1
     return out, labels
+
+
+def _regions(owner: dict[int, int], frag: np.ndarray, lab: np.ndarray, n: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Object labels (a representative fragment per object) of the retina and of the
+    sampled pixels."""
+    lut = np.zeros(n + 1, np.int32)
+    for i, g in owner.items():
+        lut[i] = g
+    return lut[frag], lut[lab]
+
+
+def _depths(region: np.ndarray, region_lab: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+            sampled: SampledCosts, sweep: PlaneSweep, cfg: PerceptionConfig, n: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cost curves, depth, cost) of every object, from its pixels away from other
+    objects (all its pixels when too few are)."""
+    weights = (~near_other_label(region, cfg.occlusion_band_px))[rows, cols].astype(float)
+    curves, support = region_curves(sampled.costs, region_lab, weights, n)
+    low = support < cfg.min_depth_pixels  # all near others: use every pixel
+    low[0] = False  # the ground's curve is not used
+    # Only the pixels of those objects: another object's pixels do not change their sums.
+    need = low[region_lab]
+    if need.any():
+        curves_all, _ = region_curves(sampled.costs[:, need], region_lab[need],
+                                      np.ones(int(need.sum())), n)
+        curves[:, low] = curves_all[:, low]
+    depth, cost, _ = best_depths(curves, sweep.inverse_depths)
+    return curves, depth, cost
 
 
 @functools.lru_cache(maxsize=4)
