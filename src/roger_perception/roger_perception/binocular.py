@@ -5,9 +5,11 @@ convexity test (``grouping``) nothing to see: no notch where they meet. The righ
 stands 16 cm beside the left one, so the two objects, 10-20 cm apart in depth, shift
 against each other by the difference of their disparities (2-4 px at 1 m, 128 px): their
 outlines no longer line up there, and the right retina's own grouping keeps them apart
-(or shows ground between them). Measured on the robot's scan and object gazes of
-worlds/inspection.yaml (docs/perception.md): of the left retina's groups holding two
-objects, 2 of 18 also held them in the right retina, and the box pair c03_2/c07_0 never did.
+(or shows ground between them). Measured on the scan gazes and a gaze at every object
+of worlds/inspection.yaml, both retinas grouped by intensity and convexity alone: of 18
+groups of the left retina holding two objects, 2 held the same two in the right retina,
+and the box pair c03_2/c07_0 (merged in 4 left frames) never did. docs/perception.md,
+step 6b, has what it changes over the robot's looks and in closed loop.
 
 A group of the left retina is split where its fragments (each one intensity-homogeneous
 surface: a face, a plain object, a texture cell) fall, placed at the group's depth, on
