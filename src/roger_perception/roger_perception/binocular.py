@@ -24,7 +24,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from roger_perception.config import PerceptionConfig
-from roger_perception.grouping import absorb_slivers, adjacency, group_fragments
+from roger_perception.grouping import absorb_slivers, adjacency, group_fragments, owner_lut
 from roger_perception.plane_sweep import PlaneSweep
 from roger_perception.segmentation import (
     foreground_mask,
@@ -57,10 +57,7 @@ def group_labels(image: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
     ground = sure_ground(image, fg)
     frag = split_at_notches(frag, image, ground, bg, cfg.notch_px, cfg.min_roi_pixels)
     owner = group_fragments(frag, ground, adjacency(frag), cfg.min_roi_pixels, cfg.notch_px)
-    lut = np.zeros(int(frag.max()) + 1, np.int32)
-    for i, g in owner.items():
-        lut[i] = g
-    return lut[frag]
+    return owner_lut(owner, int(frag.max()))[frag]
 
 
 def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
@@ -81,9 +78,7 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
         The new owner of every fragment (unchanged groups keep their representative; a
         split group's parts are represented by their smallest fragment label).
     """
-    members: dict[int, list[int]] = {}
-    for i, g in owner.items():
-        members.setdefault(g, []).append(i)
+    members = _members(owner)
     new = dict(owner)
     if all(len(ms) == 1 for ms in members.values()):
         return new
@@ -128,9 +123,7 @@ def _join_pieces(owner: dict[int, int], side: Mapping[int, int], frag: np.ndarra
     object) whose fragments all fall on the right-retina group of the object it touches
     joins that object: there it is part of it. Small: under ``MIXED_SHARE`` of what falls
     on that right group."""
-    groups: dict[int, list[int]] = {}
-    for p, g in owner.items():
-        groups.setdefault(g, []).append(p)
+    groups = _members(owner)
     held: dict[int, dict[int, int]] = {}
     for g, ms in groups.items():
         on = {side.get(p, 0) for p in ms}
@@ -148,11 +141,23 @@ def _join_pieces(owner: dict[int, int], side: Mapping[int, int], frag: np.ndarra
                 continue
             if touching is None:
                 touching = adjacency(frag)
-            if any(touching.get((min(p, q), max(p, q)), 0)
-                   for p in groups[g] for q in groups[main]):
+            if any(_shared(touching, p, q) for p in groups[g] for q in groups[main]):
                 for p in groups[g]:
                     new[p] = main
     return new
+
+
+def _members(owner: Mapping[int, int]) -> dict[int, list[int]]:
+    """The fragments of every group."""
+    members: dict[int, list[int]] = {}
+    for p, g in owner.items():
+        members.setdefault(g, []).append(p)
+    return members
+
+
+def _shared(touching: Mapping[tuple[int, int], int], p: int, q: int) -> int:
+    """Boundary length two fragments share (``adjacency`` keys pairs smaller first)."""
+    return touching.get((min(p, q), max(p, q)), 0)
 
 
 def _on_edge(frag: np.ndarray) -> np.ndarray:
@@ -173,13 +178,14 @@ def _falls_on(frag: np.ndarray, owner: Mapping[int, int],
     rows, cols = np.nonzero(frag)
     lab = frag[rows, cols]
     n = int(frag.max()) + 1
-    rho = np.zeros(n)
+    z = np.full(n, np.nan)
     for p, g in owner.items():
-        z = float(depth[g])
-        rho[p] = 1.0 / z if np.isfinite(z) and z > 0 else np.nan
-    ok = np.isfinite(rho[lab])
+        d = float(depth[g])
+        if np.isfinite(d) and d > 0:
+            z[p] = d
+    ok = np.isfinite(z[lab])
     rows, cols, lab = rows[ok], cols[ok], lab[ok]
-    mu, mv, ahead = sweep.right_pixels(cols + 0.5, rows + 0.5, 1.0 / rho[lab])
+    mu, mv, ahead = sweep.right_pixels(cols + 0.5, rows + 0.5, z[lab])
     cu, cv = np.floor(mu).astype(np.int64), np.floor(mv).astype(np.int64)
     inside = ahead & (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
     seen = np.zeros(lab.size, np.int64)
@@ -191,8 +197,8 @@ def _falls_on(frag: np.ndarray, owner: Mapping[int, int],
     landed = counts.sum(axis=1)
     best = counts.argmax(axis=1)
     share = counts[np.arange(n), best]
-    good = (landed >= ON_OBJECTS * np.maximum(area, 1)) & (share >= MAJORITY * landed) & (
-        landed > 0)
+    # At least half a pixel landed, so ``landed`` > 0 wherever this holds.
+    good = (landed >= ON_OBJECTS * np.maximum(area, 1)) & (share >= MAJORITY * landed)
     return {int(p): int(best[p]) for p in owner if good[p]}
 
 
@@ -210,7 +216,7 @@ def _parts(members: list[int], side: dict[int, int], touching: Mapping[tuple[int
         for p in list(rest):
             best, length = None, 0
             for r, ms in parts.items():
-                n = sum(touching.get((min(p, q), max(p, q)), 0) for q in ms)
+                n = sum(_shared(touching, p, q) for q in ms)
                 if n > length:
                     best, length = r, n
             if best is not None:

@@ -62,6 +62,15 @@ def adjacency(labels: np.ndarray) -> dict[tuple[int, int], int]:
             for k, c in zip(pairs.tolist(), counts.tolist(), strict=True)}
 
 
+def owner_lut(owner: Mapping[int, int], n: int) -> np.ndarray:
+    """Lookup table from fragment label (0..n) to its object's representative label (0 for
+    the ground): ``owner_lut(owner, n)[frag]`` is the object label image."""
+    lut = np.zeros(n + 1, np.int32)
+    for i, g in owner.items():
+        lut[i] = g
+    return lut
+
+
 def absorb_slivers(frag: np.ndarray, min_pixels: int) -> np.ndarray:
     """Give every fragment smaller than ``min_pixels`` to the neighbour it shares the
     longest boundary with (repeated, so that a chain of slivers reaches a large fragment).

@@ -43,6 +43,7 @@ from roger_perception.grouping import (
     adjacency,
     group_fragments,
     near_other_label,
+    owner_lut,
 )
 from roger_perception.plane_sweep import PlaneSweep, SampledCosts, best_depths, region_curves
 from roger_perception.segmentation import (
@@ -159,9 +160,7 @@ def _regions(owner: dict[int, int], frag: np.ndarray, lab: np.ndarray, n: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Object labels (a representative fragment per object) of the retina and of the
     sampled pixels."""
-    lut = np.zeros(n + 1, np.int32)
-    for i, g in owner.items():
-        lut[i] = g
+    lut = owner_lut(owner, n)
     return lut[frag], lut[lab]
 
 
