@@ -27,10 +27,12 @@ from conftest import WORLDS
 
 from roger_common.types import Action, Goal
 from roger_experiments.feature_report import MERGE_SHARE, Look, collect_looks
+from roger_perception import roi_finder
 from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world
+from roger_sim.worldgen import random_world
 
 SHIPPED = sorted(p.stem for p in WORLDS.glob("*.yaml"))
 #: Worlds with merges this perception still makes, and why (docs/perception.md, "Limits").
@@ -105,3 +107,19 @@ def test_the_right_retina_splits_two_boxes_whose_outlines_line_up_in_the_left() 
             rois = perception.process(frame)
             merged += sum(pair <= _holders(perception, frame, r.roi_id) for r in rois)
         assert merged == (0 if split else len(frames)), (split, merged)
+
+
+def test_the_right_retina_cuts_a_fragment_that_holds_two_objects(monkeypatch) -> None:
+    # A random world (inspection.yaml's recipe, seed 41): objects of about one grey, one
+    # behind the other, make one fragment in the left retina (no intensity edge, no
+    # notch) and two groups in the right one. Over the robot's looks, the fragment cut
+    # (binocular.split_fragments_by_other_eye) removes most of those merges and splits
+    # no object.
+    world = random_world(8, 3, seed=41, size_range=(0.08, 0.14))
+    with_cut = collect_looks(world).looks
+    monkeypatch.setattr(roi_finder, "split_fragments_by_other_eye",
+                        lambda frag, owner, *args: (frag, dict(owner)))
+    without = collect_looks(world).looks
+    merges = [sum(len(lk.merged) > 1 for lk in looks) for looks in (without, with_cut)]
+    assert merges[0] >= 6 and merges[1] <= merges[0] // 2, merges
+    assert _splits(with_cut) <= _splits(without), (_splits(with_cut), _splits(without))

@@ -13,24 +13,32 @@ step 6b, has what it changes over the robot's looks and in closed loop.
 
 A group of the left retina is split where its fragments (each one intensity-homogeneous
 surface: a face, a plain object, a texture cell) fall, placed at the group's depth, on
-different groups of the right retina. Only fragments are moved, never pixels: a cut runs
-where the left retina shows an intensity edge.
+different groups of the right retina (``split_by_other_eye``): a cut runs where the left
+retina shows an intensity edge. Before that, a single fragment that holds two objects of
+about one grey is cut when its parts fall on two right groups and the plane sweep puts
+them at different depths (``split_fragments_by_other_eye``): a watershed on the left
+image draws that cut.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import absorb_slivers, adjacency, group_fragments, owner_lut
-from roger_perception.plane_sweep import PlaneSweep
+from roger_perception.plane_sweep import PlaneSweep, SampledCosts
 from roger_perception.segmentation import (
     foreground_mask,
     fragment_labels,
+    label_boxes,
+    seed_by_depth,
     split_at_notches,
     sure_ground,
+    watershed_grey,
 )
 
 #: A fragment belongs to the right-retina group that holds at least this share of its
@@ -41,6 +49,36 @@ ON_OBJECTS = 0.5
 #: A right-retina group is a merge of two left groups when each brings this share of the
 #: pixels that fall on it.
 MIXED_SHARE = 0.25
+#: A pixel of a left fragment seeds the part of the right group it falls on only when it
+#: falls this deep (px) inside that group: placed at one depth for the whole fragment,
+#: the parts of two objects land a few pixels off their own (their disparities differ by
+#: 2-5 px at 1 m), so pixels near the groups' border do not say which one they belong to.
+SEED_INSIDE_PX = 2.0
+#: A fragment is cut only where at least this share of it (and ``min_roi_pixels``) falls
+#: on the second right group.
+PIECE_SHARE = 0.1
+
+
+@dataclass(frozen=True)
+class _Landing:
+    """Where the left retina's fragment pixels fall in the right retina.
+
+    Attributes:
+        rows, cols, lab: Left pixels (with a usable depth) and their fragment labels.
+        seen: Right-retina group each pixel falls on (0 ground or outside).
+        cu, cv: Right-retina pixel it falls on (-1 outside).
+        counts: (fragments + 1, right groups + 1) pixels of each fragment on each group.
+        area: Pixels of every fragment label.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    lab: np.ndarray
+    seen: np.ndarray
+    cu: np.ndarray
+    cv: np.ndarray
+    counts: np.ndarray
+    area: np.ndarray
 
 
 def group_labels(image: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
@@ -58,6 +96,124 @@ def group_labels(image: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
     frag = split_at_notches(frag, image, ground, bg, cfg.notch_px, cfg.min_roi_pixels)
     owner = group_fragments(frag, ground, adjacency(frag), cfg.min_roi_pixels, cfg.notch_px)
     return owner_lut(owner, int(frag.max()))[frag]
+
+
+def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
+                                 depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
+                                 other: np.ndarray, image: np.ndarray, ground: np.ndarray,
+                                 bg: float, costs: SampledCosts, cfg: PerceptionConfig
+                                 ) -> tuple[np.ndarray, dict[int, int]]:
+    """Cut a left-retina fragment that falls on two groups of the right retina.
+
+    Two objects of about the same grey, one behind the other, can make one fragment in
+    the left retina (no intensity edge, no notch between them) and two groups in the
+    right one, where their outlines shift against each other. A fragment is cut when, at
+    its group's depth, large parts of it (``MIXED_SHARE`` each) fall on two right groups
+    that it holds nearly alone, and the two parts' depths, measured by the plane sweep,
+    are two or more hypotheses apart (``segmentation.seed_by_depth``): a right retina that
+    splits one object (a face, a shading edge) leaves the parts at one depth, and the
+    fragment whole. The pixels that fall deep inside either group seed a watershed on the
+    left image, which draws the cut.
+
+    Args:
+        frag: Fragment labels of the left retina (0 ground).
+        owner: Group (a representative fragment) of every fragment.
+        depth: Depth (m, left optical axis) of every group, indexed by its representative.
+        sweep: The frame's geometry.
+        other: Group labels of the right retina (``group_labels``).
+        image: The left retina.
+        ground: Sure ground of the left retina (``segmentation.sure_ground``).
+        bg: Ground level of the left retina.
+        costs: The plane sweep's sampled costs of the left retina.
+        cfg: Gives ``min_roi_pixels`` and ``depth_sigmas``.
+
+    Returns:
+        (fragment labels, owner): every new fragment is a group of its own; unchanged
+        when nothing is cut.
+    """
+    min_pixels = cfg.min_roi_pixels
+    land = _landing(frag, owner, depth, sweep, other)
+    counts = land.counts
+    held = counts.sum(axis=0)
+    # Per right group, the pixels each left group brings to it.
+    groups = sorted(set(owner.values()))
+    index = {g: i for i, g in enumerate(groups)}
+    by_group = np.zeros((len(groups), counts.shape[1]), np.int64)
+    for p, g in owner.items():
+        by_group[index[g]] += counts[p]
+    edge = _on_edge(frag)
+    cuts: list[tuple[int, int, int, int | None]] = []
+    for p in sorted(owner):
+        c = counts[p]
+        landed = int(c.sum())
+        if land.area[p] < 2 * min_pixels or edge[p] or landed < ON_OBJECTS * land.area[p]:
+            continue
+        ra, rb = (int(r) for r in np.argsort(-c)[:2])
+        if ra == 0 or rb == 0 or c[ra] < (1.0 - MIXED_SHARE) * held[ra]:
+            continue  # p does not hold its main right group nearly alone
+        if c[rb] < max(PIECE_SHARE * landed, min_pixels):
+            continue
+        if c[rb] >= (1.0 - MIXED_SHARE) * held[rb]:
+            cuts.append((p, ra, rb, None))  # two objects in one fragment
+            continue
+        # A piece of an object the left retina shows mostly as another group: the rest
+        # of that right group comes from one other left group, which the piece joins.
+        rest = by_group[:, rb].copy()
+        rest[index[owner[p]]] -= c[rb]
+        other_group = int(np.argmax(rest))
+        if (groups[other_group] != owner[p]
+                and rest[other_group] >= (1.0 - MIXED_SHARE) * (held[rb] - c[rb])):
+            cuts.append((p, ra, rb, groups[other_group]))
+    if not cuts:
+        return frag, dict(owner)
+    inside = _inside(other)
+    out = frag.copy()
+    new = dict(owner)
+    boxes = label_boxes(frag)
+    grey = watershed_grey(image, bg)
+    height, width = frag.shape
+    next_label = int(frag.max()) + 1
+    for p, ra, rb, joins in cuts:
+        by0, bx0, by1, bx1 = boxes[p]
+        y0, y1 = max(by0 - 1, 0), min(by1 + 1, height)
+        x0, x1 = max(bx0 - 1, 0), min(bx1 + 1, width)
+        mask = out[y0:y1, x0:x1] == p
+        markers = np.where(mask, 0, 3).astype(np.int32)
+        sel = land.lab == p
+        deep = np.zeros(int(sel.sum()), bool)
+        on = land.cu[sel] >= 0
+        deep[on] = inside[land.cv[sel][on], land.cu[sel][on]] >= SEED_INSIDE_PX
+        r, cc, seen = land.rows[sel] - y0, land.cols[sel] - x0, land.seen[sel]
+        for k, group in ((1, ra), (2, rb)):
+            here = deep & (seen == group)
+            markers[r[here], cc[here]] = k
+        if min((markers == 1).sum(), (markers == 2).sum()) < 0.25 * min_pixels:
+            continue
+        if not seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0),
+                             cfg.depth_sigmas):
+            continue  # one depth: the right retina split one object
+        flood = grey[y0:y1, x0:x1]
+        cv2.watershed(cv2.merge([flood, flood, flood]), markers)
+        part = mask & (markers == 2)
+        if part.sum() < min_pixels or (mask & (markers == 1)).sum() < min_pixels:
+            continue
+        crop = out[y0:y1, x0:x1]
+        crop[part] = next_label  # watershed lines stay with the first part
+        new[next_label] = next_label if joins is None else joins
+        next_label += 1
+    return out, new
+
+
+def _inside(labels: np.ndarray) -> np.ndarray:
+    """Distance (px) of every pixel from the nearest pixel of another label (ground
+    included): how deep inside its own group a pixel lies."""
+    h, w = labels.shape
+    border = np.zeros((h, w), bool)
+    border[:, 1:] |= labels[:, 1:] != labels[:, :-1]
+    border[:, :-1] |= labels[:, 1:] != labels[:, :-1]
+    border[1:, :] |= labels[1:, :] != labels[:-1, :]
+    border[:-1, :] |= labels[1:, :] != labels[:-1, :]
+    return cv2.distanceTransform((~border).astype(np.uint8), cv2.DIST_L2, 3)
 
 
 def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
@@ -83,7 +239,7 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     if all(len(ms) == 1 for ms in members.values()):
         return new
     # Where every fragment falls in the right retina, at its group's depth.
-    side = _falls_on(frag, owner, depth, sweep, other)
+    side = _falls_on(_landing(frag, owner, depth, sweep, other), owner)
     # A right-retina group that holds large parts of two left groups merges there what
     # the left retina keeps apart: it says nothing about where either group ends. (A
     # sliver the left retina cut off an object does not count.)
@@ -168,12 +324,11 @@ def _on_edge(frag: np.ndarray) -> np.ndarray:
     return on
 
 
-def _falls_on(frag: np.ndarray, owner: Mapping[int, int],
-              depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
-              other: np.ndarray) -> dict[int, int]:
-    """The right-retina group each fragment's pixels fall on, placed at its group's depth
-    (all fragments in one projection); fragments of which too few land on objects there,
-    or with no group holding a clear majority, are left out."""
+def _landing(frag: np.ndarray, owner: Mapping[int, int],
+             depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
+             other: np.ndarray) -> _Landing:
+    """Where every pixel of the left retina's fragments falls in the right retina, placed
+    at its group's depth (all fragments in one projection)."""
     h, w = other.shape
     rows, cols = np.nonzero(frag)
     lab = frag[rows, cols]
@@ -190,15 +345,23 @@ def _falls_on(frag: np.ndarray, owner: Mapping[int, int],
     inside = ahead & (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
     seen = np.zeros(lab.size, np.int64)
     seen[inside] = other[cv[inside], cu[inside]]
-    area = np.bincount(lab, minlength=n)
     on = seen > 0
     m = int(other.max()) + 1
     counts = np.bincount(lab[on] * m + seen[on], minlength=n * m).reshape(n, m)
+    return _Landing(rows, cols, lab, seen, np.where(inside, cu, -1), np.where(inside, cv, -1),
+                    counts, np.bincount(frag.ravel(), minlength=n))
+
+
+def _falls_on(land: _Landing, owner: Mapping[int, int]) -> dict[int, int]:
+    """The right-retina group each fragment's pixels fall on; fragments of which too few
+    land on objects there, or with no group holding a clear majority, are left out."""
+    counts = land.counts
+    n = counts.shape[0]
     landed = counts.sum(axis=1)
     best = counts.argmax(axis=1)
     share = counts[np.arange(n), best]
     # At least half a pixel landed, so ``landed`` > 0 wherever this holds.
-    good = (landed >= ON_OBJECTS * np.maximum(area, 1)) & (share >= MAJORITY * landed)
+    good = (landed >= ON_OBJECTS * np.maximum(land.area, 1)) & (share >= MAJORITY * landed)
     return {int(p): int(best[p]) for p in owner if good[p]}
 
 

@@ -94,9 +94,10 @@ class PerceptionConfig:
         notch_px: Deepest concave notch of ground (pixels, from the convex hull) the
             union of two fragments of one object may hold: the image of a convex shape
             is convex up to digitisation.
-        binocular_split: Split a left-retina object whose fragments fall, at its depth,
-            on different objects of the right retina (objects one behind the other whose
-            outlines line up in the left eye; ``roger_perception.binocular``).
+        binocular_split: Split a left-retina object whose fragments (or a fragment whose
+            parts, at different depths) fall, at its depth, on different objects of the
+            right retina (objects one behind the other whose outlines line up in the
+            left eye; ``roger_perception.binocular``).
         motion_threshold: Change of a pixel's smoothed intensity, after Roger's own eye and
             neck motion is compensated, that counts as visual motion: half of
             ``fg_threshold``, since an object is at least that much brighter than the

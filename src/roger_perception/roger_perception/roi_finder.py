@@ -36,7 +36,11 @@ import numpy as np
 
 from roger_common.geometry import as_point
 from roger_common.types import StereoFrame
-from roger_perception.binocular import group_labels, split_by_other_eye
+from roger_perception.binocular import (
+    group_labels,
+    split_by_other_eye,
+    split_fragments_by_other_eye,
+)
 from roger_perception.config import PerceptionConfig
 from roger_perception.grouping import (
     absorb_slivers,
@@ -107,25 +111,32 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     ground = sure_ground(frame.left, fg)
     frag = split_at_notches(frag, frame.left, ground, bg, cfg.notch_px, cfg.min_roi_pixels,
                             sampled, cfg.depth_sigmas)
-    n = int(frag.max())
-    ring = cv2.dilate(frag.astype(np.float32), _RING).astype(np.int32)
-    pixel_label = np.where(fg > 0, frag, ring)
-    lab = pixel_label[rows, cols]
+    n, lab = _sampled_labels(frag, fg, rows, cols)
 
     # 3. objects: touching fragments join unless their union holds a notch of ground
     owner = group_fragments(frag, ground, adjacency(frag), cfg.min_roi_pixels, cfg.notch_px)
     region, region_lab = _regions(owner, frag, lab, n)
     # 4. depth of every object
     curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep, cfg, n)
-    # 5. the right retina's view: a group whose fragments fall on two of its groups there
-    if cfg.binocular_split and len(set(owner.values())) < len(owner):
-        split = split_by_other_eye(frag, owner, depth, sweep,
-                                   group_labels(frame.right, cfg), cfg.min_roi_pixels)
-        if split != owner:
-            owner = split
+    # 5. the right retina's view: a fragment, then a group, that falls on two of its
+    # groups there
+    if cfg.binocular_split:
+        right = group_labels(frame.right, cfg)
+        cut, cut_owner = split_fragments_by_other_eye(frag, owner, depth, sweep, right,
+                                                      frame.left, ground, bg, sampled, cfg)
+        if len(cut_owner) > len(owner):
+            frag, owner = cut, cut_owner
+            n, lab = _sampled_labels(frag, fg, rows, cols)
             region, region_lab = _regions(owner, frag, lab, n)
             curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep,
                                           cfg, n)
+        if len(set(owner.values())) < len(owner):
+            split = split_by_other_eye(frag, owner, depth, sweep, right, cfg.min_roi_pixels)
+            if split != owner:
+                owner = split
+                region, region_lab = _regions(owner, frag, lab, n)
+                curves, depth, cost = _depths(region, region_lab, rows, cols, sampled,
+                                              sweep, cfg, n)
 
     width = frame.camera.width
     objects: list[tuple[int, SeenObject]] = []
@@ -154,6 +165,15 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
         u0, v0, u1, v1 = o.blob.bbox
         labels[v0:v1, u0:u1][o.blob.mask] = k + 1
     return out, labels
+
+
+def _sampled_labels(frag: np.ndarray, fg: np.ndarray, rows: np.ndarray, cols: np.ndarray
+                    ) -> tuple[int, np.ndarray]:
+    """(largest fragment label, fragment of every sampled pixel): a foreground pixel's
+    own, a ground pixel's that of a fragment within 2 px."""
+    ring = cv2.dilate(frag.astype(np.float32), _RING).astype(np.int32)
+    pixel_label = np.where(fg > 0, frag, ring)
+    return int(frag.max()), pixel_label[rows, cols]
 
 
 def _regions(owner: dict[int, int], frag: np.ndarray, lab: np.ndarray, n: int

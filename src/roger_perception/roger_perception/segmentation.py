@@ -305,10 +305,9 @@ def split_at_notches(labels: np.ndarray, image: np.ndarray, ground: np.ndarray, 
         markers[mask & (side > keep)] = 1
         markers[mask & (side < -keep)] = 2
         if costs is not None:
-            _seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0), sigmas)
+            seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0), sigmas)
         if grey is None:
-            grey = np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
-                           * (255.0 / 0.5), 0, 255).astype(np.uint8)
+            grey = watershed_grey(image, bg)
         g = grey[y0:y1, x0:x1]
         cv2.watershed(cv2.merge([g, g, g]), markers)
         part = mask & (markers == 2)
@@ -415,7 +414,13 @@ def _uncovered(mask: np.ndarray) -> int:
     return int(hull.sum()) - int(mask.sum())
 
 
-def _seed_by_depth(markers: np.ndarray, mask: np.ndarray, ground: np.ndarray,
+def watershed_grey(image: np.ndarray, bg: float) -> np.ndarray:
+    """The image the cuts' watershed floods: smoothed, above the ground level, 8 bits."""
+    return np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
+                   * (255.0 / 0.5), 0, 255).astype(np.uint8)
+
+
+def seed_by_depth(markers: np.ndarray, mask: np.ndarray, ground: np.ndarray,
                    costs: SampledCosts, origin: tuple[int, int], sigmas: float) -> bool:
     """When markers 1 and 2 lie at depths two or more hypotheses apart, extend them (in
     place) by the undecided pixels of ``mask`` whose window clearly matches one marker's
