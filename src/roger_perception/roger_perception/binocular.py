@@ -22,7 +22,7 @@ image draws that cut.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -218,7 +218,9 @@ def _inside(labels: np.ndarray) -> np.ndarray:
 
 def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
                        depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
-                       other: np.ndarray, min_pixels: int) -> dict[int, int]:
+                       other: np.ndarray, min_pixels: int,
+                       apart: Callable[[Sequence[int], Sequence[int]], bool] | None = None
+                       ) -> dict[int, int]:
     """Split the left retina's groups whose fragments fall on different groups of the
     right retina (module docstring).
 
@@ -229,6 +231,8 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
         sweep: The frame's geometry (left pixel at a depth -> right pixel).
         other: Group labels of the right retina (``group_labels``).
         min_pixels: Each part of a split holds at least this many pixels.
+        apart: Whether two sets of fragments lie at different depths (``depths_apart``);
+            without it no fragment changes group (``_hand_over``).
 
     Returns:
         The new owner of every fragment (unchanged groups keep their representative; a
@@ -252,12 +256,17 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
              for r, by in held.items()}
     touching: dict[tuple[int, int], int] | None = None
     edge = _on_edge(frag)
+    main = _main_groups(members, side, area)
     for g, ms in members.items():
         if len(ms) < 2 or any(edge[p] for p in ms):
             continue
         # Fragments on a right group this group holds nearly alone.
         clear = {p: side[p] for p in ms if p in side and not mixed[side[p]]
                  and held[side[p]][g] >= (1.0 - MIXED_SHARE) * sum(held[side[p]].values())}
+        if len(set(clear.values())) == 1 and apart is not None:
+            if touching is None:
+                touching = adjacency(frag)
+            _hand_over(g, ms, set(clear.values()), side, held, main, touching, new, apart)
         if len(set(clear.values())) < 2:
             continue
         if touching is None:
@@ -270,6 +279,65 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
             for p in part:
                 new[p] = rep
     return _join_pieces(new, side, frag, area, touching)
+
+
+def _main_groups(members: Mapping[int, list[int]], side: Mapping[int, int],
+                 area: np.ndarray) -> dict[int, int]:
+    """The right-retina group on which most of each left group's pixels fall."""
+    main: dict[int, int] = {}
+    for g, ms in members.items():
+        on: dict[int, int] = {}
+        for p in ms:
+            if p in side:
+                on[side[p]] = on.get(side[p], 0) + int(area[p])
+        if on:
+            main[g] = max(on, key=lambda r: on[r])
+    return main
+
+
+def _hand_over(g: int, members: list[int], own: set[int], side: Mapping[int, int],
+               held: Mapping[int, Mapping[int, int]], main: Mapping[int, int],
+               touching: Mapping[tuple[int, int], int], owner: dict[int, int],
+               apart: Callable[[Sequence[int], Sequence[int]], bool]) -> None:
+    """Fragments of group ``g`` that fall on the right-retina group of another left group
+    ``h`` they touch (the rest of that right group comes from ``h``, and it is where
+    most of ``h`` falls) change to ``h`` (in ``owner``), while ``g`` keeps a right group
+    ``own`` it holds nearly alone: the left retina joined a face of one object to another
+    object and kept the first object's other faces apart (inspection's c03_2 top face with
+    c07_0, its front face on its own). Only a fragment at another depth than the rest of
+    ``g`` changes (``apart``): where the right retina joins two objects, a piece of ``g``'s
+    own object falls on that group too (touching.yaml's prism beside the cylinder)."""
+    for p in members:
+        r = side.get(p)
+        if r is None or r in own:
+            continue
+        others = {h: n for h, n in held[r].items() if h != g}
+        if not others:
+            continue
+        h = max(others, key=lambda k: others[k])
+        if others[h] < (1.0 - MIXED_SHARE) * sum(others.values()) or main.get(h) != r:
+            continue
+        rest = [q for q in members if q != p and owner[q] == g]
+        if rest and any(_shared(touching, p, q) for q, o in owner.items() if o == h) \
+                and apart([p], rest):
+            owner[p] = h
+
+
+def depths_apart(frag: np.ndarray, ground: np.ndarray, costs: SampledCosts, sigmas: float,
+                 a: Sequence[int], b: Sequence[int]) -> bool:
+    """Whether the plane sweep puts fragments ``a`` and ``b`` two or more depth hypotheses
+    apart (``segmentation.seed_by_depth`` on their pixels and the ground beside them)."""
+    both = np.isin(frag, [*a, *b])
+    rows, cols = np.nonzero(both)
+    height, width = frag.shape
+    y0, y1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, height)
+    x0, x1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, width)
+    crop = frag[y0:y1, x0:x1]
+    mask = both[y0:y1, x0:x1]
+    markers = np.where(mask, 0, 3).astype(np.int32)
+    markers[np.isin(crop, a)] = 1
+    markers[np.isin(crop, b)] = 2
+    return seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0), sigmas)
 
 
 def _join_pieces(owner: dict[int, int], side: Mapping[int, int], frag: np.ndarray,

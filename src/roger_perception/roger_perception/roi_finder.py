@@ -37,6 +37,7 @@ import numpy as np
 from roger_common.geometry import as_point
 from roger_common.types import StereoFrame
 from roger_perception.binocular import (
+    depths_apart,
     group_labels,
     split_by_other_eye,
     split_fragments_by_other_eye,
@@ -131,7 +132,9 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
             curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep,
                                           cfg, n)
         if len(set(owner.values())) < len(owner):
-            split = split_by_other_eye(frag, owner, depth, sweep, right, cfg.min_roi_pixels)
+            split = split_by_other_eye(
+                frag, owner, depth, sweep, right, cfg.min_roi_pixels,
+                functools.partial(depths_apart, frag, ground, sampled, cfg.depth_sigmas))
             if split != owner:
                 owner = split
                 region, region_lab = _regions(owner, frag, lab, n)
