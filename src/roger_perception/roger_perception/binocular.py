@@ -39,6 +39,7 @@ from roger_perception.segmentation import (
     split_at_notches,
     sure_ground,
     watershed_grey,
+    watershed_part,
 )
 
 #: A fragment belongs to the right-retina group that holds at least this share of its
@@ -192,10 +193,8 @@ def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
         if not seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0),
                              cfg.depth_sigmas):
             continue  # one depth: the right retina split one object
-        flood = grey[y0:y1, x0:x1]
-        cv2.watershed(cv2.merge([flood, flood, flood]), markers)
-        part = mask & (markers == 2)
-        if part.sum() < min_pixels or (mask & (markers == 1)).sum() < min_pixels:
+        part = watershed_part(grey[y0:y1, x0:x1], markers, mask, min_pixels)
+        if part is None:
             continue
         crop = out[y0:y1, x0:x1]
         crop[part] = next_label  # watershed lines stay with the first part

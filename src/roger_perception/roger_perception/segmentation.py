@@ -308,10 +308,8 @@ def split_at_notches(labels: np.ndarray, image: np.ndarray, ground: np.ndarray, 
             seed_by_depth(markers, mask, ground[y0:y1, x0:x1], costs, (y0, x0), sigmas)
         if grey is None:
             grey = watershed_grey(image, bg)
-        g = grey[y0:y1, x0:x1]
-        cv2.watershed(cv2.merge([g, g, g]), markers)
-        part = mask & (markers == 2)
-        if part.sum() < min_pixels or (mask & (markers == 1)).sum() < min_pixels:
+        part = watershed_part(grey[y0:y1, x0:x1], markers, mask, min_pixels)
+        if part is None:
             continue
         crop = out[y0:y1, x0:x1]
         crop[part] = next_label
@@ -418,6 +416,22 @@ def watershed_grey(image: np.ndarray, bg: float) -> np.ndarray:
     """The image the cuts' watershed floods: smoothed, above the ground level, 8 bits."""
     return np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
                    * (255.0 / 0.5), 0, 255).astype(np.uint8)
+
+
+def watershed_part(grey: np.ndarray, markers: np.ndarray, mask: np.ndarray,
+                   min_pixels: int) -> np.ndarray | None:
+    """Flood ``markers`` (1 and 2 the two seeds, 0 undecided, 3 outside ``mask``) over
+    ``grey`` (in place: watershed lines become -1).
+
+    Returns:
+        The pixels of ``mask`` that went to seed 2, or None when either part holds fewer
+        than ``min_pixels``.
+    """
+    cv2.watershed(cv2.merge([grey, grey, grey]), markers)
+    part = mask & (markers == 2)
+    if part.sum() < min_pixels or (mask & (markers == 1)).sum() < min_pixels:
+        return None
+    return part
 
 
 def seed_by_depth(markers: np.ndarray, mask: np.ndarray, ground: np.ndarray,
