@@ -15,6 +15,7 @@ import pytest
 import yaml
 from conftest import REPO, WORLDS, child_pids
 
+from roger_bringup.orchestrator import StopRequested, install_signal_handlers
 from roger_experiments.progress import counters_info
 
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
@@ -114,6 +115,24 @@ def test_sigint_mid_run_stops_every_node(no_leaks, tmp_path, ros_domain):
     assert not alive, f"node processes still alive after SIGINT: {alive}"
     assert (out / "metrics.json").exists(), "metrics.json not written on interrupt"
     assert os.getpid() not in child_pids()
+
+
+def test_a_signal_inside_rclpy_still_stops_the_run() -> None:
+    # The orchestrator's handler raises StopRequested wherever the main thread is; inside
+    # rclpy's message conversion pybind11 turns it into "RuntimeError: Unable to convert
+    # call argument" (seen once in make test: exit 1 instead of 130). The guard remembers
+    # the signal, so run_graph re-raises the stop; without a signal the error stays one.
+    guard = install_signal_handlers()
+    try:
+        assert guard.stop_requested(RuntimeError("other")) is None
+        with pytest.raises(StopRequested):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)  # the handler runs between two bytecodes, well before this ends
+        stop = guard.stop_requested(RuntimeError("Unable to convert call argument '0'"))
+        assert isinstance(stop, StopRequested) and str(stop) == "SIGINT"
+    finally:
+        guard()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 @pytest.mark.parametrize("content, field", [

@@ -18,7 +18,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -310,17 +309,37 @@ class StopRequested(Exception):
     """SIGINT or SIGTERM reached the orchestrator."""
 
 
-def install_signal_handlers() -> Callable[[], None]:
-    """Turn SIGINT/SIGTERM into StopRequested; returns a function restoring the old handlers."""
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+class SignalGuard:
+    """SIGINT/SIGTERM turned into StopRequested while installed; calling it restores the
+    old handlers.
 
-    def handler(signum: int, frame: Any) -> None:
-        raise StopRequested(signal.Signals(signum).name)
+    The handler raises wherever the main thread is, which can be inside rclpy's C++ code
+    converting a message (pybind11 then reports a RuntimeError instead of the
+    StopRequested): ``received`` keeps the signal's name so that the caller can tell
+    (``stop_requested``).
+    """
 
-    for s in old:
-        signal.signal(s, handler)
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        for s in self._old:
+            signal.signal(s, self._handler)
 
-    def restore() -> None:
-        for s, h in old.items():
+    def _handler(self, signum: int, frame: Any) -> None:
+        self.received = signal.Signals(signum).name
+        raise StopRequested(self.received)
+
+    def stop_requested(self, exc: BaseException) -> StopRequested | None:
+        """The StopRequested that ``exc`` stands for (None when no signal came)."""
+        if isinstance(exc, StopRequested):
+            return exc
+        return StopRequested(self.received) if self.received is not None else None
+
+    def __call__(self) -> None:
+        for s, h in self._old.items():
             signal.signal(s, h)
-    return restore
+
+
+def install_signal_handlers() -> SignalGuard:
+    """Turn SIGINT/SIGTERM into StopRequested; the result restores the old handlers."""
+    return SignalGuard()

@@ -321,6 +321,13 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
         flush_until = time.monotonic() + 0.5
         while time.monotonic() < flush_until:
             executor.spin_once(timeout_sec=0.05)
+    except RuntimeError as exc:
+        # A signal that came while rclpy converted a message surfaces as pybind11's
+        # RuntimeError, not as the StopRequested its handler raised.
+        stop = restore.stop_requested(exc)
+        if stop is None:
+            raise
+        raise stop from exc
     finally:
         restore()
         killed = graph.stop()
