@@ -39,7 +39,7 @@ def test_there_are_core_modules_to_check() -> None:
 @pytest.mark.parametrize("module", core_modules())
 def test_core_module_imports_without_ros(module: str) -> None:
     blocked = ["rclpy", "std_msgs", "sensor_msgs", "geometry_msgs", "rosgraph_msgs",
-               "builtin_interfaces", "rcl_interfaces", "roger_interfaces"]
+               "builtin_interfaces", "rcl_interfaces", "roger_interfaces", "diagnostic_msgs"]
     code = ("import sys\n"
             + "".join(f"sys.modules[{m!r}] = None\n" for m in blocked)
             + f"import importlib; importlib.import_module({module!r})\n")

@@ -18,7 +18,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from ros_helpers import spin_until
 
-from roger_common.liveness import CRASH_EXIT, SETUP_EXIT, HeartbeatWatch, Silence
+from roger_common.liveness import CRASH_EXIT, SETUP_EXIT, Silence
+from roger_common.ros_node import HeartbeatWatch
 
 
 class FakeClock:

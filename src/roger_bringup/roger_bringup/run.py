@@ -31,7 +31,8 @@ from roger_bringup.orchestrator import (
 )
 from roger_common.dds import PROFILE_ENV
 from roger_common.errors import ConfigError, RogerError
-from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT, HeartbeatWatch
+from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT
+from roger_common.ros_node import HeartbeatWatch
 from roger_experiments.evaluation import CycleRow, RunRecorder
 from roger_experiments.progress import ProgressBar, counters_info
 from roger_memory.persistence import load_snapshot

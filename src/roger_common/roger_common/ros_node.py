@@ -1,5 +1,7 @@
 """ROS node plumbing shared by every Roger node: QoS profiles, parameters from the config
-dataclasses, and the ``main`` every node runs (``spin_node``).
+dataclasses, the heartbeat (``attach_heartbeat``, ``HeartbeatWatch``; the plain half, exit
+codes and ``Silence``, is in ``roger_common.liveness``) and the ``main`` every node runs
+(``spin_node``).
 
 Message conversions are in ``conversions``; neither module is imported by core code.
 """
@@ -7,17 +9,26 @@ Message conversions are in ``conversions``; neither module is imported by core c
 from __future__ import annotations
 
 import math
+import os
+import socket
+import sys
+import time
+import traceback
 from collections.abc import Callable
 from dataclasses import fields, replace
 from typing import Any, TypeVar
 
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -28,7 +39,18 @@ from roger_common.configdoc import (
     field_range,
     live_fields,
 )
-from roger_common.errors import ConfigError
+from roger_common.dds import apply_dds_defaults
+from roger_common.errors import ConfigError, RogerError
+from roger_common.liveness import (
+    CRASH_EXIT,
+    HEARTBEAT_PERIOD_S,
+    HEARTBEAT_SUFFIX,
+    HEARTBEAT_TOPIC,
+    SETUP_EXIT,
+    Silence,
+    heartbeats,
+    this_process,
+)
 
 #: Commands and state: reliable, depth 10 (house style).
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -178,24 +200,106 @@ def declare_config(node: Node, config_cls: type[C], prefix: str = "",
     return current[0]
 
 
+def attach_heartbeat(node: Any, period_s: float = HEARTBEAT_PERIOD_S) -> Any:
+    """Publish a heartbeat of ``node``'s process from a wall-clock timer of ``node``.
+
+    The timer runs in the node's executor, so the beats stop when the executor stops.
+    Each beat is one DiagnosticStatus named ``"<node name>: heartbeat"`` with the process's
+    host (``hardware_id``), ``pid``, beat count and the longest gap between two beats so
+    far (how long the executor has been busy at worst).
+
+    Returns:
+        The timer.
+    """
+    host, pid = this_process()
+    pub = node.create_publisher(DiagnosticArray, HEARTBEAT_TOPIC, RELIABLE)
+    name = node.get_name() + HEARTBEAT_SUFFIX
+    state = {"beat": 0, "last": time.monotonic(), "longest": 0.0}
+
+    def beat() -> None:
+        now = time.monotonic()
+        if state["beat"]:
+            state["longest"] = max(state["longest"], now - state["last"])
+        state["beat"] += 1
+        state["last"] = now
+        msg = DiagnosticArray()
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.status = [DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=name, message="alive", hardware_id=host,
+            values=[KeyValue(key="pid", value=str(pid)),
+                    KeyValue(key="beat", value=str(state["beat"])),
+                    KeyValue(key="longest_gap_s", value=f"{state['longest']:.3f}")])]
+        pub.publish(msg)
+
+    beat()
+    return node.create_timer(period_s, beat, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+
+class HeartbeatWatch:
+    """Listens to ``/diagnostics`` on an existing node and keeps a ``Silence`` per process.
+
+    It adds one subscription to ``node`` (the orchestrator's monitor) rather than a node of
+    its own, so the graph the user sees does not change.
+    """
+
+    def __init__(self, node: Any, silence: Silence | None = None) -> None:
+        self.silence = silence or Silence()
+        self.host = socket.gethostname()
+        node.create_subscription(DiagnosticArray, HEARTBEAT_TOPIC, self._on_msg, RELIABLE)
+
+    def _on_msg(self, msg: Any) -> None:
+        for key, name in heartbeats(msg):
+            self.silence.heard(key, name)
+
+    def silent_for(self, pid: int) -> float | None:
+        """Seconds since the local process ``pid`` last beat; None if it never did."""
+        return self.silence.silent_for((self.host, pid))
+
+    def forget(self, pid: int) -> None:
+        """Drop the local process ``pid`` (it was killed; its pid may be reused)."""
+        self.silence.forget((self.host, pid))
+
+
 def spin_node(factory: Any, prog: str, args: list[str] | None = None,
               setup: Any = None) -> None:
-    """The ``main`` of every Roger node: init, build, spin, and shut down cleanly.
+    """Init, build, spin with a heartbeat, shut down cleanly; exit with a telling status.
 
-    Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException) end the spin
-    quietly. A setup failure (a bad world file, parameter or memory file: RogerError,
-    ValueError, OSError) prints one line ``prog: message`` and exits with status 2, which
-    the orchestrator reads as "do not restart". An exception raised later, in a callback,
-    is logged with its traceback and exits with status 70, which the orchestrator restarts.
-    While it spins, the node publishes a heartbeat on ``/diagnostics`` (roger_common.liveness
-    has the details).
-
-    Args:
-        factory: Callable returning the node (called after ``rclpy.init``).
-        prog: Program name for the error line, e.g. ``"roger-sim"``.
-        args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
-        setup: Optional callable run once before ``rclpy.init``.
+    * Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException): quiet, status 0.
+    * A setup failure while building the node (RogerError, ValueError, OSError): one line
+      ``prog: message``, no traceback, status ``SETUP_EXIT`` (2): "do not restart".
+    * Any other exception, from a callback or from building the node: logged with its
+      traceback, status ``CRASH_EXIT`` (70): "restart me".
     """
-    from roger_common import liveness
-
-    liveness.spin_node(factory, prog, args, setup)
+    if setup is not None:
+        setup()
+    apply_dds_defaults(os.environ)
+    rclpy.init(args=args)
+    node = None
+    status = 0
+    try:
+        try:
+            node = factory()
+        except (RogerError, ValueError, OSError) as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            status = SETUP_EXIT
+        if node is not None:
+            attach_heartbeat(node)
+            rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:
+        status = CRASH_EXIT
+        where = "a callback" if node is not None else "the node's construction"
+        text = (f"{prog}: {where} raised {type(exc).__name__}: {exc}; exiting with status "
+                f"{CRASH_EXIT} (an orchestrator restarts the node)\n"
+                f"{traceback.format_exc().rstrip()}")
+        if node is not None:
+            node.get_logger().fatal(text)
+        else:
+            print(text, file=sys.stderr)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if status:
+        sys.exit(status)
