@@ -262,13 +262,20 @@ class HeartbeatWatch:
 
 def spin_node(factory: Any, prog: str, args: list[str] | None = None,
               setup: Any = None) -> None:
-    """Init, build, spin with a heartbeat, shut down cleanly; exit with a telling status.
+    """The ``main`` of every Roger node: init, build, spin with a heartbeat
+    (``attach_heartbeat``), shut down cleanly; exit with a telling status.
 
     * Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException): quiet, status 0.
     * A setup failure while building the node (RogerError, ValueError, OSError): one line
       ``prog: message``, no traceback, status ``SETUP_EXIT`` (2): "do not restart".
     * Any other exception, from a callback or from building the node: logged with its
       traceback, status ``CRASH_EXIT`` (70): "restart me".
+
+    Args:
+        factory: Callable returning the node (called after ``rclpy.init``).
+        prog: Program name for the error line, e.g. ``"roger-sim"``.
+        args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
+        setup: Optional callable run once before ``rclpy.init``.
     """
     if setup is not None:
         setup()

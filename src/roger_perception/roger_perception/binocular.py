@@ -109,12 +109,15 @@ def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     Two objects of about the same grey, one behind the other, can make one fragment in
     the left retina (no intensity edge, no notch between them) and two groups in the
     right one, where their outlines shift against each other. A fragment is cut when, at
-    its group's depth, large parts of it (``MIXED_SHARE`` each) fall on two right groups
-    that it holds nearly alone, and the two parts' depths, measured by the plane sweep,
-    are two or more hypotheses apart (``segmentation.seed_by_depth``): a right retina that
-    splits one object (a face, a shading edge) leaves the parts at one depth, and the
-    fragment whole. The pixels that fall deep inside either group seed a watershed on the
-    left image, which draws the cut.
+    its group's depth, it holds its main right group nearly alone, at least
+    ``PIECE_SHARE`` of it (and ``min_roi_pixels``) falls on a second right group that it
+    holds nearly alone too (the cut-off part is a group of its own) or whose rest comes
+    from one other left group (the part joins that group), and the two parts' depths,
+    measured by the plane sweep, are two or more hypotheses apart
+    (``segmentation.seed_by_depth``): a right retina that splits one object (a face, a
+    shading edge) leaves the parts at one depth, and the fragment whole. The pixels that
+    fall at least ``SEED_INSIDE_PX`` inside either group seed a watershed on the left
+    image, which draws the cut.
 
     Args:
         frag: Fragment labels of the left retina (0 ground).
@@ -242,11 +245,12 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     if all(len(ms) == 1 for ms in members.values()):
         return new
     # Where every fragment falls in the right retina, at its group's depth.
-    side = _falls_on(_landing(frag, owner, depth, sweep, other), owner)
+    land = _landing(frag, owner, depth, sweep, other)
+    side = _falls_on(land, owner)
     # A right-retina group that holds large parts of two left groups merges there what
     # the left retina keeps apart: it says nothing about where either group ends. (A
     # sliver the left retina cut off an object does not count.)
-    area = np.bincount(frag.ravel())
+    area = land.area
     held: dict[int, dict[int, int]] = {}
     for p, r in side.items():
         by_group = held.setdefault(r, {})

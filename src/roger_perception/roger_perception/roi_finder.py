@@ -116,9 +116,9 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
 
     # 3. objects: touching fragments join unless their union holds a notch of ground
     owner = group_fragments(frag, ground, adjacency(frag), cfg.min_roi_pixels, cfg.notch_px)
-    region, region_lab = _regions(owner, frag, lab, n)
     # 4. depth of every object
-    curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep, cfg, n)
+    region, curves, depth, cost = _objects(owner, frag, lab, n, rows, cols, sampled, sweep,
+                                           cfg)
     # 5. the right retina's view: a fragment, then a group, that falls on two of its
     # groups there
     if cfg.binocular_split:
@@ -128,18 +128,16 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
         if len(cut_owner) > len(owner):
             frag, owner = cut, cut_owner
             n, lab = _sampled_labels(frag, fg, rows, cols)
-            region, region_lab = _regions(owner, frag, lab, n)
-            curves, depth, cost = _depths(region, region_lab, rows, cols, sampled, sweep,
-                                          cfg, n)
+            region, curves, depth, cost = _objects(owner, frag, lab, n, rows, cols, sampled,
+                                                   sweep, cfg)
         if len(set(owner.values())) < len(owner):
             split = split_by_other_eye(
                 frag, owner, depth, sweep, right, cfg.min_roi_pixels,
                 functools.partial(depths_apart, frag, ground, sampled, cfg.depth_sigmas))
             if split != owner:
                 owner = split
-                region, region_lab = _regions(owner, frag, lab, n)
-                curves, depth, cost = _depths(region, region_lab, rows, cols, sampled,
-                                              sweep, cfg, n)
+                region, curves, depth, cost = _objects(owner, frag, lab, n, rows, cols,
+                                                       sampled, sweep, cfg)
 
     width = frame.camera.width
     objects: list[tuple[int, SeenObject]] = []
@@ -179,19 +177,14 @@ def _sampled_labels(frag: np.ndarray, fg: np.ndarray, rows: np.ndarray, cols: np
     return int(frag.max()), pixel_label[rows, cols]
 
 
-def _regions(owner: dict[int, int], frag: np.ndarray, lab: np.ndarray, n: int
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Object labels (a representative fragment per object) of the retina and of the
-    sampled pixels."""
+def _objects(owner: dict[int, int], frag: np.ndarray, lab: np.ndarray, n: int,
+             rows: np.ndarray, cols: np.ndarray, sampled: SampledCosts, sweep: PlaneSweep,
+             cfg: PerceptionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(object label image, cost curves, depth, cost) of every object: its label is a
+    representative fragment; its depth comes from its pixels away from other objects (all
+    its pixels when too few are)."""
     lut = owner_lut(owner, n)
-    return lut[frag], lut[lab]
-
-
-def _depths(region: np.ndarray, region_lab: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-            sampled: SampledCosts, sweep: PlaneSweep, cfg: PerceptionConfig, n: int
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(cost curves, depth, cost) of every object, from its pixels away from other
-    objects (all its pixels when too few are)."""
+    region, region_lab = lut[frag], lut[lab]
     weights = (~near_other_label(region, cfg.occlusion_band_px))[rows, cols].astype(float)
     curves, support = region_curves(sampled.costs, region_lab, weights, n)
     low = support < cfg.min_depth_pixels  # all near others: use every pixel
@@ -203,7 +196,7 @@ def _depths(region: np.ndarray, region_lab: np.ndarray, rows: np.ndarray, cols: 
                                       np.ones(int(need.sum())), n)
         curves[:, low] = curves_all[:, low]
     depth, cost, _ = best_depths(curves, sweep.inverse_depths)
-    return curves, depth, cost
+    return region, curves, depth, cost
 
 
 @functools.lru_cache(maxsize=4)

@@ -133,7 +133,7 @@ def fragment_labels(image: np.ndarray, fg: np.ndarray, bg: float, cfg: Perceptio
     _, seeds = cv2.connectedComponents(cv2.erode(flat, _SQUARE), connectivity=4)
     markers = np.where(seeds > 0, seeds + 1, 0).astype(np.int32)
     markers[cv2.dilate(fg, _GROUND_GAP) == 0] = 1
-    grey = np.clip((smooth - bg) * (255.0 / 0.5), 0, 255).astype(np.uint8)
+    grey = _grey(smooth, bg)
     cv2.watershed(cv2.merge([grey, grey, grey]), markers)
     lines = markers < 0
     markers[lines | (markers == 1)] = 0
@@ -414,8 +414,13 @@ def _uncovered(mask: np.ndarray) -> int:
 
 def watershed_grey(image: np.ndarray, bg: float) -> np.ndarray:
     """The image the cuts' watershed floods: smoothed, above the ground level, 8 bits."""
-    return np.clip((cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0) - bg)
-                   * (255.0 / 0.5), 0, 255).astype(np.uint8)
+    return _grey(cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0), bg)
+
+
+def _grey(smooth: np.ndarray, bg: float) -> np.ndarray:
+    """A smoothed retina above the ground level ``bg`` as 8 bits (0.5 above it is 255): the
+    image every watershed of this module floods."""
+    return np.clip((smooth - bg) * (255.0 / 0.5), 0, 255).astype(np.uint8)
 
 
 def watershed_part(grey: np.ndarray, markers: np.ndarray, mask: np.ndarray,
@@ -435,7 +440,7 @@ def watershed_part(grey: np.ndarray, markers: np.ndarray, mask: np.ndarray,
 
 
 def seed_by_depth(markers: np.ndarray, mask: np.ndarray, ground: np.ndarray,
-                   costs: SampledCosts, origin: tuple[int, int], sigmas: float) -> bool:
+                  costs: SampledCosts, origin: tuple[int, int], sigmas: float) -> bool:
     """When markers 1 and 2 lie at depths two or more hypotheses apart, extend them (in
     place) by the undecided pixels of ``mask`` whose window clearly matches one marker's
     depth, and return True (``split_at_notches``)."""
