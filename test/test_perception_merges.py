@@ -11,10 +11,12 @@ score every ROI of every frame (here only; the robot never sees them):
 * an object is *split* in a frame when two or more ROIs each show it on at least half of
   their pixels (over-segmentation: one object, two places in the map).
 
-The known merge is kept as a strict xfail (docs/perception.md, "Limits"): a prism seen
-above a box's top face on two_rows.yaml. (Two boxes on inspection.yaml whose outlines line
-up one behind the other were one; the right retina's view, ``roger_perception.binocular``,
-now keeps them apart in every frame.)
+A world with a merge this perception still makes goes into ``KNOWN_MERGES`` as a strict
+xfail (docs/perception.md, "Limits"); none is left. (Two boxes on inspection.yaml whose
+outlines line up one behind the other were one until the right retina's view,
+``roger_perception.binocular``; two_rows.yaml's sphere and the cylinder behind it were one
+until the concavity pre-test of ``segmentation.deepest_defect`` stopped missing the ground
+between two fragments that touch only through a stray pixel.)
 """
 
 from __future__ import annotations
@@ -36,10 +38,7 @@ from roger_sim.worldgen import random_world
 
 SHIPPED = sorted(p.stem for p in WORLDS.glob("*.yaml"))
 #: Worlds with merges this perception still makes, and why (docs/perception.md, "Limits").
-KNOWN_MERGES = {
-    "two_rows": "pri_b above box_a's top face: the boundary runs along the rows and their "
-                "outlines meet without a notch",
-}
+KNOWN_MERGES: dict[str, str] = {}
 #: Most split objects allowed, as a share of the ROIs of a run.
 MAX_SPLIT_SHARE = 0.01
 

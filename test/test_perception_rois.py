@@ -26,6 +26,7 @@ from roger_perception.plane_sweep import SampledCosts, region_curves
 from roger_perception.segmentation import (
     _median,
     contour_samples,
+    deepest_defect,
     ground_notches,
     segment_retina,
     split_at_notches,
@@ -235,6 +236,22 @@ def test_faces_of_one_convex_object_join_and_overlapping_objects_stay_apart() ->
     assert owner[1] == owner[2]
     assert owner[3] != owner[4]
     assert owner[2] != owner[3]
+
+
+def test_two_objects_that_touch_only_through_a_stray_pixel_stay_apart() -> None:
+    # two_rows.yaml: a sphere's fragment kept one noise pixel beside a cylinder's outline,
+    # so the two fragments "touched" through it; the cheap concavity test looked at the
+    # larger part alone, found no notch, and the two objects were one ROI.
+    frag = np.zeros((40, 60), np.int32)
+    frag[_disc(frag.shape, (20, 18), 10)] = 1
+    frag[_disc(frag.shape, (20, 40), 10)] = 2  # one column of ground between the discs
+    frag[12, 33] = 1  # the stray pixel, beside disc 2 and far from disc 1
+    assert frag[12, 34] == 2 and (frag[11:14, 30:33] == 0).all()
+    union = frag > 0
+    assert deepest_defect(union) == float("inf")
+    assert ground_notches(union, ~union, deeper_than=1.5)
+    owner = group_fragments(frag, frag == 0, adjacency(frag), min_pixels=12, notch_px=1.5)
+    assert owner[1] != owner[2]
 
 
 def test_slivers_join_the_neighbour_they_share_most_boundary_with() -> None:

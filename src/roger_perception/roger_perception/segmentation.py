@@ -323,12 +323,23 @@ def split_at_notches(labels: np.ndarray, image: np.ndarray, ground: np.ndarray, 
 def deepest_defect(mask: np.ndarray) -> float:
     """Depth (pixels) of the deepest concavity of the outer contour of ``mask`` (its
     largest part): cheap, and no more than ``DEFECT_MARGIN`` below ``ground_notches``,
-    which is only worth running where this comes near the depth wanted."""
+    which is only worth running where this comes near the depth wanted.
+
+    ``ground_notches`` takes the hull of every part that survives an opening by a 3 x 3
+    square: when two parts do (two fragments that touch only through a stray pixel), the
+    ground between them lies in that hull and no outline of one part bounds it, so the
+    answer is infinite (take the full test)."""
     # Corners only: the deepest point of a concavity is one of them.
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
                                    cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return 0.0
+    if len(contours) > 1:
+        opened, _ = cv2.findContours(cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN,
+                                                      _SQUARE),
+                                     cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if len(opened) > 1:
+            return float("inf")
     contour = max(contours, key=cv2.contourArea)
     if len(contour) < 4:
         return 0.0
