@@ -269,9 +269,17 @@ def plot(result: dict[str, Any], path: Path) -> None:
     ax.set_ylabel("feature units")
     ax.legend()
     ax.set_title("Spread of each feature")
-    ratio = np.nan_to_num(np.asarray(s["ratio"], float), nan=0.0)
-    bx.bar(x, ratio, color=["tab:green" if r >= result["ratio_target"] else "tab:orange"
+    ratio = np.nan_to_num(np.asarray(s["ratio"], float), nan=0.0, posinf=np.inf)
+    # An infinite ratio (W: no spread within an object once felt) is drawn as a bar just
+    # above the others, marked, instead of one that scales the axis to 1e308.
+    finite = ratio[np.isfinite(ratio)]
+    top = 1.15 * max(float(finite.max()) if finite.size else 0.0, result["ratio_target"])
+    shown = np.where(np.isfinite(ratio), ratio, top)
+    bx.bar(x, shown, color=["tab:green" if r >= result["ratio_target"] else "tab:orange"
                             for r in ratio])
+    for k in np.flatnonzero(~np.isfinite(ratio)):
+        bx.text(x[k], top, "inf", ha="center", va="bottom")
+    bx.set_ylim(0.0, 1.1 * top)
     bx.axhline(result["ratio_target"], color="k", ls="--", lw=1, label="target")
     bx.set_xticks(x, s["features"])
     bx.set_ylabel("between / within")
