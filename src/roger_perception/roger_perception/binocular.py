@@ -61,8 +61,9 @@ PIECE_SHARE = 0.1
 
 
 @dataclass(frozen=True)
-class _Landing:
-    """Where the left retina's fragment pixels fall in the right retina.
+class Landing:
+    """Where the left retina's fragment pixels fall in the right retina (``landing``),
+    projected once per frame for both splits.
 
     Attributes:
         rows, cols, lab: Left pixels (with a usable depth) and their fragment labels.
@@ -99,8 +100,7 @@ def group_labels(image: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
     return owner_lut(owner, int(frag.max()))[frag]
 
 
-def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
-                                 depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
+def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int], land: Landing,
                                  other: np.ndarray, image: np.ndarray, ground: np.ndarray,
                                  bg: float, costs: SampledCosts, cfg: PerceptionConfig
                                  ) -> tuple[np.ndarray, dict[int, int]]:
@@ -122,8 +122,8 @@ def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     Args:
         frag: Fragment labels of the left retina (0 ground).
         owner: Group (a representative fragment) of every fragment.
-        depth: Depth (m, left optical axis) of every group, indexed by its representative.
-        sweep: The frame's geometry.
+        land: Where ``frag``'s pixels fall in the right retina at their group's depth
+            (``landing``).
         other: Group labels of the right retina (``group_labels``).
         image: The left retina.
         ground: Sure ground of the left retina (``segmentation.sure_ground``).
@@ -136,7 +136,6 @@ def split_fragments_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
         when nothing is cut.
     """
     min_pixels = cfg.min_roi_pixels
-    land = _landing(frag, owner, depth, sweep, other)
     counts = land.counts
     held = counts.sum(axis=0)
     # Per right group, the pixels each left group brings to it.
@@ -218,9 +217,8 @@ def _inside(labels: np.ndarray) -> np.ndarray:
     return cv2.distanceTransform((~border).astype(np.uint8), cv2.DIST_L2, 3)
 
 
-def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
-                       depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
-                       other: np.ndarray, min_pixels: int,
+def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int], land: Landing,
+                       min_pixels: int,
                        apart: Callable[[Sequence[int], Sequence[int]], bool] | None = None
                        ) -> dict[int, int]:
     """Split the left retina's groups whose fragments fall on different groups of the
@@ -229,9 +227,8 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     Args:
         frag: Fragment labels of the left retina (0 ground).
         owner: Group (a representative fragment) of every fragment.
-        depth: Depth (m, left optical axis) of every group, indexed by its representative.
-        sweep: The frame's geometry (left pixel at a depth -> right pixel).
-        other: Group labels of the right retina (``group_labels``).
+        land: Where ``frag``'s pixels fall in the right retina at their group's depth
+            (``landing``).
         min_pixels: Each part of a split holds at least this many pixels.
         apart: Whether two sets of fragments lie at different depths (``depths_apart``);
             without it no fragment changes group (``_hand_over``).
@@ -244,8 +241,6 @@ def split_by_other_eye(frag: np.ndarray, owner: Mapping[int, int],
     new = dict(owner)
     if all(len(ms) == 1 for ms in members.values()):
         return new
-    # Where every fragment falls in the right retina, at its group's depth.
-    land = _landing(frag, owner, depth, sweep, other)
     side = _falls_on(land, owner)
     # A right-retina group that holds large parts of two left groups merges there what
     # the left retina keeps apart: it says nothing about where either group ends. (A
@@ -395,11 +390,19 @@ def _on_edge(frag: np.ndarray) -> np.ndarray:
     return on
 
 
-def _landing(frag: np.ndarray, owner: Mapping[int, int],
-             depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
-             other: np.ndarray) -> _Landing:
+def landing(frag: np.ndarray, owner: Mapping[int, int],
+            depth: Mapping[int, float] | np.ndarray, sweep: PlaneSweep,
+            other: np.ndarray) -> Landing:
     """Where every pixel of the left retina's fragments falls in the right retina, placed
-    at its group's depth (all fragments in one projection)."""
+    at its group's depth (all fragments in one projection).
+
+    Args:
+        frag: Fragment labels of the left retina (0 ground).
+        owner: Group (a representative fragment) of every fragment.
+        depth: Depth (m, left optical axis) of every group, indexed by its representative.
+        sweep: The frame's geometry (left pixel at a depth -> right pixel).
+        other: Group labels of the right retina (``group_labels``).
+    """
     h, w = other.shape
     rows, cols = np.nonzero(frag)
     lab = frag[rows, cols]
@@ -419,11 +422,11 @@ def _landing(frag: np.ndarray, owner: Mapping[int, int],
     on = seen > 0
     m = int(other.max()) + 1
     counts = np.bincount(lab[on] * m + seen[on], minlength=n * m).reshape(n, m)
-    return _Landing(rows, cols, lab, seen, np.where(inside, cu, -1), np.where(inside, cv, -1),
+    return Landing(rows, cols, lab, seen, np.where(inside, cu, -1), np.where(inside, cv, -1),
                     counts, np.bincount(frag.ravel(), minlength=n))
 
 
-def _falls_on(land: _Landing, owner: Mapping[int, int]) -> dict[int, int]:
+def _falls_on(land: Landing, owner: Mapping[int, int]) -> dict[int, int]:
     """The right-retina group each fragment's pixels fall on; fragments of which too few
     land on objects there, or with no group holding a clear majority, are left out."""
     counts = land.counts

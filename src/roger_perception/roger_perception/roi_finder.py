@@ -39,6 +39,7 @@ from roger_common.types import StereoFrame
 from roger_perception.binocular import (
     depths_apart,
     group_labels,
+    landing,
     split_by_other_eye,
     split_fragments_by_other_eye,
 )
@@ -123,16 +124,18 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     # groups there
     if cfg.binocular_split:
         right = group_labels(frame.right, cfg)
-        cut, cut_owner = split_fragments_by_other_eye(frag, owner, depth, sweep, right,
-                                                      frame.left, ground, bg, sampled, cfg)
+        land = landing(frag, owner, depth, sweep, right)
+        cut, cut_owner = split_fragments_by_other_eye(frag, owner, land, right, frame.left,
+                                                      ground, bg, sampled, cfg)
         if len(cut_owner) > len(owner):
             frag, owner = cut, cut_owner
             n, lab = _sampled_labels(frag, fg, rows, cols)
             region, curves, depth, cost = _objects(owner, frag, lab, n, rows, cols, sampled,
                                                    sweep, cfg)
+            land = landing(frag, owner, depth, sweep, right)
         if len(set(owner.values())) < len(owner):
             split = split_by_other_eye(
-                frag, owner, depth, sweep, right, cfg.min_roi_pixels,
+                frag, owner, land, cfg.min_roi_pixels,
                 functools.partial(depths_apart, frag, ground, sampled, cfg.depth_sigmas))
             if split != owner:
                 owner = split

@@ -330,13 +330,12 @@ def deepest_defect(mask: np.ndarray) -> float:
     ground between them lies in that hull and no outline of one part bounds it, so the
     answer is infinite (take the full test)."""
     # Corners only: the deepest point of a concavity is one of them.
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
-                                   cv2.CHAIN_APPROX_SIMPLE)
+    binary = mask.astype(np.uint8)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return 0.0
     if len(contours) > 1:
-        opened, _ = cv2.findContours(cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN,
-                                                      _SQUARE),
+        opened, _ = cv2.findContours(cv2.morphologyEx(binary, cv2.MORPH_OPEN, _SQUARE),
                                      cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if len(opened) > 1:
             return float("inf")
