@@ -23,12 +23,11 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-import numpy as np
 import pytest
 from conftest import WORLDS
 
 from roger_common.types import Action, Goal
-from roger_experiments.feature_report import MERGE_SHARE, Look, collect_looks
+from roger_experiments.feature_report import MERGE_SHARE, Look, collect_looks, label_shares
 from roger_perception import roi_finder
 from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
@@ -79,9 +78,9 @@ def test_every_shipped_world_is_scored() -> None:
 
 
 def _holders(perception: Perception, frame, roi_id: int) -> set[str]:
-    truth = frame.left_labels[perception.last_roi_labels == roi_id + 1]
-    counts = np.bincount(truth[truth >= 0], minlength=len(frame.label_names))
-    return {frame.label_names[k] for k in np.flatnonzero(counts >= MERGE_SHARE * truth.size)}
+    """The objects a ROI holds, as roger features counts them (MERGE_SHARE)."""
+    return {name for name, share in label_shares(frame, perception.last_roi_labels, roi_id)
+            if share >= MERGE_SHARE}
 
 
 def test_the_right_retina_splits_two_boxes_whose_outlines_line_up_in_the_left() -> None:

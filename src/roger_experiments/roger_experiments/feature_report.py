@@ -84,7 +84,7 @@ class LookLog:
     frames: int = 0
 
 
-def _label_shares(frame: StereoFrame, roi_labels: np.ndarray, roi_id: int
+def label_shares(frame: StereoFrame, roi_labels: np.ndarray, roi_id: int
                   ) -> list[tuple[str, float]]:
     """(object, share of the ROI's pixels) for the objects under a ROI, largest first."""
     if frame.left_labels is None:
@@ -119,7 +119,7 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
                 att.spatial_map.association_radius:
             near = None
         for roi in rois:
-            shares = _label_shares(frame, perception.last_roi_labels, roi.roi_id)
+            shares = label_shares(frame, perception.last_roi_labels, roi.roi_id)
             obj, purity = shares[0] if shares else (None, 0.0)
             merged = tuple(o for o, s in shares if s >= MERGE_SHARE)
             log.looks.append(Look(stage, log.frames, roi is near and stage != "scan", obj,
