@@ -7,10 +7,12 @@ import json
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import WORLDS
 
 from roger_bringup.cli import main
+from roger_common.types import ObjectSpec, Roi, WorldSpec
 from roger_experiments import feature_report
 
 
@@ -62,7 +64,7 @@ def test_the_ratio_plot_keeps_an_infinite_ratio_on_the_scale_of_the_others(tmp_p
     names = ["I1", "D", "W"]
     result = {"world": "w.yaml", "ratio_target": 2.0, "focus_looks": {
         "features": names, "within": [0.02, 0.003, 0.0], "between": [0.1, 0.03, 0.2],
-        "ratio": [5.0, 10.0, float("inf")]}}
+        "ratio": [5.0, 10.0, float("inf")], "copies": [0.01, float("nan"), 0.0]}}
     shown = {}
     real_savefig = plt.Figure.savefig
 
@@ -74,3 +76,42 @@ def test_the_ratio_plot_keeps_an_infinite_ratio_on_the_scale_of_the_others(tmp_p
         mp.setattr(plt.Figure, "savefig", keep)
         feature_report.plot(result, tmp_path / "p.png")
     assert 10.0 < shown["ylim"][1] < 20.0, shown
+
+
+def _look(obj: str, values: dict[int, float], known_d: bool = True) -> feature_report.Look:
+    features = np.full(11, 0.5)
+    for k, v in values.items():
+        features[k] = v
+    known = np.ones(11, bool)
+    known[9] = known_d
+    roi = Roi(0, (0, 0, 4, 4), (0.5, 0.0, 0.05), features, known)
+    return feature_report.Look("shift", 0, True, obj, 1.0, (obj,), roi)
+
+
+def test_copies_of_a_category_at_other_places_are_measured_apart_from_one_objects_looks(
+) -> None:
+    # Two categories of two copies. Looks of one object scatter by +-0.01 in I1; the
+    # copies of category a read 0.40 and 0.50 (another bearing), those of b 0.80 and 0.80.
+    objects = tuple(ObjectSpec(n, "box", (0.5, y), 0.1, grey, 1.0)
+                    for n, y, grey in (("a0", -0.2, 60), ("a1", 0.2, 60),
+                                       ("b0", -0.4, 120), ("b1", 0.4, 120)))
+    world = WorldSpec(objects)
+    i1 = {"a0": 0.40, "a1": 0.50, "b0": 0.80, "b1": 0.80}
+    looks = [_look(o, {0: v + e}, known_d=o != "b1") for o, v in i1.items()
+             for e in (-0.01, 0.01)]
+    s = feature_report.feature_stats(looks, world)
+    # Pooled over the categories: (0.05^2 * 2 + 0) / (1 + 1) -> 0.05.
+    assert s["copies"][0] == pytest.approx(0.05 / np.sqrt(1.0), rel=1e-6)
+    assert s["within"][0] == pytest.approx(np.sqrt(8 * 0.01 ** 2 / 4), rel=1e-6)
+    # Category means 0.45 and 0.80: sd 0.2475; the copies are 0.05 apart.
+    assert s["ratio_copies"][0] == pytest.approx(np.std([0.45, 0.8], ddof=1) / 0.05, rel=1e-6)
+    # D unknown for b1: only a's two copies give its dof (no spread: equal values).
+    assert s["copies"][9] == 0.0
+    # W equal everywhere: no spread, no ratio.
+    assert s["copies"][10] == 0.0
+    # Copies of a are 0.1 apart in I1 (RMS over 11 features: 0.1 / sqrt(11)), of b 0.
+    assert s["copy_distance_median"] == pytest.approx(0.5 * 0.1 / np.sqrt(11), rel=1e-6)
+    text = feature_report.markdown({"world": "w", "frames": 1, "all_looks": s,
+                                    "focus_looks": s, "ratio_target": 2.0,
+                                    "segmentation": feature_report.segmentation_stats(looks)})
+    assert "between-copies sd" in text and "| I1 |" in text

@@ -11,7 +11,9 @@ Each ROI of each frame is one *look*. The simulator's label images say (for scor
 which object a ROI shows and how pure it is; the robot never sees them. Per feature the
 report gives the within-object spread (the pooled standard deviation of the looks of one
 object around their mean), the spread between categories (the standard deviation of the
-category means) and their ratio; over all eleven features, the distance between two looks
+category means) and their ratio, and the spread between copies of one category standing at
+other places (view dependence: what a repeat of a category must be recognised through);
+over all eleven features, the distance between two looks
 of one object against the distance between the two nearest categories (RMS over the
 features known in both, the memory's distance); and the ROI purity and merges.
 """
@@ -178,8 +180,10 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
                 for c, names in cats.items()}
     means = np.stack(list(cat_mean.values())) if cat_mean else np.zeros((0, n))
     between = np.nanstd(means, axis=0, ddof=1) if len(means) > 1 else np.full(n, np.nan)
+    copies, copy_pairs = _copy_spread(cats, obj_mean, obj_known, cat_mean)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = between / within
+        ratio_copies = between / copies
     pairs = []
     for name, lks in by_obj.items():
         for a, b in itertools.combinations(lks, 2):
@@ -198,7 +202,42 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
         "nearest_categories_distance": nearest[0],
         "nearest_categories": [list(nearest[1]) if nearest[1] else None,
                                list(nearest[2]) if nearest[2] else None],
+        "copies": copies.tolist(), "ratio_copies": ratio_copies.tolist(),
+        "copy_distance_median": float(np.median(copy_pairs)) if copy_pairs.size
+        else math.nan,
     }
+
+
+def _copy_spread(cats: dict[Any, list[str]], obj_mean: dict[str, np.ndarray],
+                 obj_known: dict[str, np.ndarray], cat_mean: dict[Any, np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """How far copies of one category, standing at other places, read apart.
+
+    Per feature, the pooled standard deviation of the object means of each category
+    around the category's mean (degrees of freedom: copies seen minus one per category);
+    NaN when no category had two copies seen. And the RMS distance (features known in
+    both) between the means of every two copies of one category. A copy at another place
+    is seen at another bearing, distance and yaw: where this spread reaches the spread
+    between categories, no threshold on that feature tells "another copy" from "another
+    category" (docs/perception.md, "View dependence").
+    """
+    n = len(FEATURE_NAMES)
+    sq, dof = np.zeros(n), np.zeros(n)
+    pairs = []
+    for c, names in cats.items():
+        if len(names) < 2:
+            continue
+        x = np.stack([obj_mean[o] for o in names])
+        k = np.stack([obj_known[o] for o in names])
+        dev = np.where(k, x - cat_mean[c], 0.0)
+        sq += (dev * dev).sum(axis=0)
+        dof += np.maximum(k.sum(axis=0) - 1, 0)
+        for a, b in itertools.combinations(names, 2):
+            pairs.append(_rms(obj_mean[a], obj_mean[b], obj_known[a], obj_known[b]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.where(dof > 0, np.sqrt(sq / np.maximum(dof, 1)), np.nan)
+    arr = np.asarray([p for p in pairs if math.isfinite(p)])
+    return spread, arr
 
 
 def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
@@ -236,14 +275,17 @@ def markdown(result: dict[str, Any]) -> str:
         s = result[key]
         lines += [f"**{title}**: {s['looks']} pure looks of {s['objects']} objects in "
                   f"{s['categories']} categories.", "",
-                  "| feature | within-object sd | between-category sd | ratio |",
-                  "|---|---|---|---|"]
-        for f, w, b, r in zip(s["features"], s["within"], s["between"], s["ratio"],
-                              strict=True):
+                  "| feature | within-object sd | between-category sd | ratio | "
+                  "between-copies sd | between-category / between-copies |",
+                  "|---|---|---|---|---|---|"]
+        for f, w, b, r, c, rc in zip(s["features"], s["within"], s["between"], s["ratio"],
+                                     s["copies"], s["ratio_copies"], strict=True):
             flag = "" if not math.isfinite(r) or r >= result["ratio_target"] else " (< 2)"
-            lines.append(f"| {f} | {w:.4f} | {b:.4f} | {r:.2f}{flag} |")
+            lines.append(f"| {f} | {w:.4f} | {b:.4f} | {r:.2f}{flag} | {c:.4f} | {rc:.2f} |")
         lines += ["", f"Two looks of one object: median {s['look_distance_median']:.4f}, "
                   f"p90 {s['look_distance_p90']:.4f} (RMS over the features known in both); "
+                  f"two copies of one category (their mean looks): median "
+                  f"{s['copy_distance_median']:.4f}; "
                   f"the two nearest categories: {s['nearest_categories_distance']:.4f} apart.",
                   ""]
     g = result["segmentation"]
@@ -263,11 +305,13 @@ def plot(result: dict[str, Any], path: Path) -> None:
     s = result["focus_looks"]
     x = np.arange(len(s["features"]))
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
-    ax.bar(x - 0.2, s["within"], 0.4, label="within one object (sd)", color="tab:red")
-    ax.bar(x + 0.2, s["between"], 0.4, label="between categories (sd)", color="tab:blue")
+    ax.bar(x - 0.27, s["within"], 0.27, label="within one object (sd)", color="tab:red")
+    ax.bar(x, np.nan_to_num(np.asarray(s["copies"], float)), 0.27,
+           label="between copies of a category (sd)", color="tab:purple")
+    ax.bar(x + 0.27, s["between"], 0.27, label="between categories (sd)", color="tab:blue")
     ax.set_xticks(x, s["features"])
     ax.set_ylabel("feature units")
-    ax.legend()
+    ax.legend(fontsize="small")
     ax.set_title("Spread of each feature")
     ratio = np.nan_to_num(np.asarray(s["ratio"], float), nan=0.0, posinf=np.inf)
     # An infinite ratio (W: no spread within an object once felt) is drawn as a bar just
@@ -292,16 +336,21 @@ def plot(result: dict[str, Any], path: Path) -> None:
 
 
 def write_looks_csv(log: LookLog, path: Path) -> None:
-    """Every look, one row: stage, gaze, focus, object, purity, position, features."""
+    """Every look, one row: stage, gaze, focus, object, purity, position, features.
+
+    An unknown feature is written as its value (0), so ``known`` (one 0/1 per feature, in
+    FEATURE_NAMES order) says which were measured: D of a cut or occluded silhouette,
+    I/T/S of a ROI with too little rim of its own, W before a haptic improvement."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["stage", "gaze", "focus", "object", "purity", "merged", "x", "y", "z",
-                    *FEATURE_NAMES, "W_known"])
+                    *FEATURE_NAMES, "W_known", "known"])
         for lk in log.looks:
             r = lk.roi
             w.writerow([lk.stage, lk.gaze, int(lk.focus), lk.obj or "", f"{lk.purity:.3f}",
                         "+".join(lk.merged), *(f"{v:.4f}" for v in r.position),
-                        *(f"{v:.5f}" for v in r.features), int(r.known[-1])])
+                        *(f"{v:.5f}" for v in r.features), int(r.known[-1]),
+                        "".join("1" if k else "0" for k in r.known)])
 
 
 def write(log: LookLog, out: Path) -> dict[str, Any]:
