@@ -52,6 +52,10 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
     with (tmp_path / "looks.csv").open() as f:
         looks = list(csv.DictReader(f))
     assert len(looks) >= focus["looks"]
+    for row in looks:  # which features were measured: W only after a haptic improvement
+        assert len(row["known"]) == 11 and set(row["known"]) <= {"0", "1"}, row
+        assert row["known"][-1] == row["W_known"], row
+    assert {row["known"][-1] for row in looks} == {"0", "1"}
     assert "| I1 |" in (tmp_path / "features.md").read_text()
 
 
@@ -100,14 +104,14 @@ def test_copies_of_a_category_at_other_places_are_measured_apart_from_one_object
     looks = [_look(o, {0: v + e}, known_d=o != "b1") for o, v in i1.items()
              for e in (-0.01, 0.01)]
     s = feature_report.feature_stats(looks, world)
-    # Pooled over the categories: (0.05^2 * 2 + 0) / (1 + 1) -> 0.05.
-    assert s["copies"][0] == pytest.approx(0.05 / np.sqrt(1.0), rel=1e-6)
+    # Pooled over the categories: sqrt((2 * 0.05^2 + 0) / (1 + 1)) = 0.05.
+    assert s["copies"][0] == pytest.approx(0.05, rel=1e-6)
     assert s["within"][0] == pytest.approx(np.sqrt(8 * 0.01 ** 2 / 4), rel=1e-6)
     # Category means 0.45 and 0.80: sd 0.2475; the copies are 0.05 apart.
     assert s["ratio_copies"][0] == pytest.approx(np.std([0.45, 0.8], ddof=1) / 0.05, rel=1e-6)
     # D unknown for b1: only a's two copies give its dof (no spread: equal values).
     assert s["copies"][9] == 0.0
-    # W equal everywhere: no spread, no ratio.
+    # W equal everywhere: no spread between copies.
     assert s["copies"][10] == 0.0
     # Copies of a are 0.1 apart in I1 (RMS over 11 features: 0.1 / sqrt(11)), of b 0.
     assert s["copy_distance_median"] == pytest.approx(0.5 * 0.1 / np.sqrt(11), rel=1e-6)
