@@ -48,6 +48,8 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
     assert focus["features"][-1] == "W" and len(focus["ratio"]) == 11
     assert focus["objects"] == 4 and focus["looks"] >= 8
     assert result["segmentation"]["merges"] == 0
+    # The four 30 cm boxes placed within 3 cm of their centres (docs/perception.md).
+    assert result["positions"]["looks"] >= 8 and result["positions"]["error_p95"] < 0.03
     assert (tmp_path / "features.png").stat().st_size > 10_000
     with (tmp_path / "looks.csv").open() as f:
         looks = list(csv.DictReader(f))
@@ -57,6 +59,7 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
         assert row["known"][-1] == row["W_known"], row
     assert {row["known"][-1] for row in looks} == {"0", "1"}
     assert "| I1 |" in (tmp_path / "features.md").read_text()
+    assert "**Positions**" in (tmp_path / "features.md").read_text()
 
 
 def test_the_ratio_plot_keeps_an_infinite_ratio_on_the_scale_of_the_others(tmp_path: Path
@@ -119,3 +122,28 @@ def test_copies_of_a_category_at_other_places_are_measured_apart_from_one_object
                                     "focus_looks": s, "ratio_target": 2.0,
                                     "segmentation": feature_report.segmentation_stats(looks)})
     assert "between-copies sd" in text and "| I1 |" in text
+
+
+def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merged_rois(
+) -> None:
+    world = WorldSpec((ObjectSpec("a", "box", (0.5, 0.0), 0.1, 60, 1.0),
+                       ObjectSpec("b", "box", (0.8, 0.3), 0.1, 90, 1.0)))
+    features, known = np.full(11, 0.5), np.ones(11, bool)
+
+    def look(obj: str, x: float, y: float, *, cut: bool = False, purity: float = 1.0,
+             merged: tuple[str, ...] | None = None) -> feature_report.Look:
+        roi = Roi(0, (0, 0, 4, 4), (x, y, 0.05), features, known, cut=cut)
+        return feature_report.Look("shift", 0, True, obj, purity,
+                                   (obj,) if merged is None else merged, roi)
+
+    looks = [look("a", 0.51, 0.0), look("a", 0.49, 0.0),      # 1 cm off, 1 cm from their mean
+             look("b", 0.8, 0.34),                            # 4 cm off
+             look("a", 0.9, 0.9, cut=True), look("a", 0.9, 0.9, purity=0.5),
+             look("b", 0.9, 0.9, merged=("a", "b"))]          # not scored
+    p = feature_report.position_stats(looks, world)
+    assert p["looks"] == 3
+    assert p["error_median"] == pytest.approx(0.01)
+    assert p["error_max"] == pytest.approx(0.04)
+    assert p["over_3cm"] == 1
+    assert p["jitter_median"] == pytest.approx(0.01)  # b's one look is its own mean: 0
+    assert feature_report.position_stats([], world)["looks"] == 0

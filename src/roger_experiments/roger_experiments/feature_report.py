@@ -15,7 +15,8 @@ category means) and their ratio, and the spread between copies of one category s
 other places (view dependence: what a repeat of a category must be recognised through);
 over all eleven features, the distance between two looks
 of one object against the distance between the two nearest categories (RMS over the
-features known in both, the memory's distance); and the ROI purity and merges.
+features known in both, the memory's distance); the ROI purity and merges; and where the
+ROIs are placed against the footprint centres (positions).
 """
 
 from __future__ import annotations
@@ -255,6 +256,36 @@ def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
     }
 
 
+def position_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
+    """Where ROIs are placed: x, y of every look at one object (uncut, pure, no merge)
+    against its footprint centre (the world file's position), in metres, and how far one
+    object's looks lie from their own mean (the jitter between looks). Objects partly
+    hidden by another are included: this is what the spatial map receives."""
+    centre = {o.name: np.asarray(o.position[:2], float) for o in world.objects}
+    by_obj: dict[str, list[np.ndarray]] = defaultdict(list)
+    for lk in looks:
+        if (lk.obj is not None and lk.obj in centre and not lk.roi.cut
+                and lk.purity >= PURE_SHARE and len(lk.merged) <= 1):
+            by_obj[lk.obj].append(np.asarray(lk.roi.position[:2], float))
+    errors = np.asarray([float(np.hypot(*(p - centre[o]))) for o, ps in by_obj.items()
+                         for p in ps])
+    jitter = np.asarray([float(np.hypot(*(p - np.mean(ps, axis=0)))) for ps in by_obj.values()
+                         for p in ps])
+    if errors.size == 0:
+        return {"looks": 0, "error_median": math.nan, "error_p95": math.nan,
+                "error_max": math.nan, "over_3cm": 0, "jitter_median": math.nan,
+                "jitter_p95": math.nan}
+    return {
+        "looks": int(errors.size),
+        "error_median": float(np.median(errors)),
+        "error_p95": float(np.percentile(errors, 95)),
+        "error_max": float(errors.max()),
+        "over_3cm": int((errors > 0.03).sum()),
+        "jitter_median": float(np.median(jitter)),
+        "jitter_p95": float(np.percentile(jitter, 95)),
+    }
+
+
 def report(log: LookLog) -> dict[str, Any]:
     """Everything ``roger features`` writes to features.json."""
     focus = [lk for lk in log.looks if lk.stage == "scan" or lk.focus]
@@ -263,6 +294,7 @@ def report(log: LookLog) -> dict[str, Any]:
         "all_looks": feature_stats(log.looks, log.world),
         "focus_looks": feature_stats(focus, log.world),
         "segmentation": segmentation_stats(log.looks),
+        "positions": position_stats(log.looks, log.world),
         "ratio_target": RATIO_TARGET,
     }
 
@@ -293,6 +325,14 @@ def markdown(result: dict[str, Any]) -> str:
               f"{g['purity_median']:.3f}, 5th percentile {g['purity_p05']:.3f}; "
               f"{g['impure']} below {PURE_SHARE}; {g['merges']} merge two objects"
               + (f" ({', '.join(g['merged_pairs'])})" if g["merged_pairs"] else "") + ".", ""]
+    p = result.get("positions")
+    if p and p["looks"]:
+        lines += [f"**Positions** (x, y of {p['looks']} uncut, pure looks against the "
+                  f"footprint centre): median {100 * p['error_median']:.1f} cm, 95th "
+                  f"percentile {100 * p['error_p95']:.1f} cm, worst "
+                  f"{100 * p['error_max']:.1f} cm, {p['over_3cm']} over 3 cm; one object's "
+                  f"looks from their mean: median {100 * p['jitter_median']:.1f} cm, 95th "
+                  f"percentile {100 * p['jitter_p95']:.1f} cm.", ""]
     return "\n".join(lines)
 
 

@@ -275,9 +275,8 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
         xa, xb = max(x0, 0), min(x0 + side.shape[1], w)
         crop = side[:, xa - x0:xb - x0]
         others = region[v0:v1, xa:xb]
-        others = others[crop]
-        if ((others > 0) & (others != region[v0 + band[0], u0 + ends[band[0]]])).any():
-            return None  # another object beside it: hidden there, or cut
+        other = crop & (others > 0) & (others != region[v0 + band[0], u0 + ends[band[0]]])
+        crop &= ~other
         curve, n = sampled.curve(crop, v0, xa)
         if n < cfg.min_depth_pixels // 2:
             return None
@@ -285,10 +284,23 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
         side_depth, _, rise = _curve_minimum(np.where(window, curve, outside), inv)
         if rise < cfg.min_depth_rise:
             return None
+        if other.any() and not _behind(sampled.curve(other, v0, xa)[0], window, inv,
+                                       side_depth):
+            return None  # another object beside it, not clearly behind: it may hide it
         u = float(u0 + extreme + (0.0 if outward < 0 else 1.0))
         v = float(v0 + float(band.sum()) / band.size + 0.5)  # band.mean(), without its set-up
         points.append(sweep.point(u, v, side_depth))
     return 0.5 * (points[0] + points[1])
+
+
+def _behind(curve: np.ndarray, window: np.ndarray, inv: np.ndarray, depth: float) -> bool:
+    """Whether the pixels of ``curve`` (another object's, beside a side) lie two or more
+    depth hypotheses behind ``depth``: that object cannot hide the side."""
+    if not np.isfinite(curve).all():
+        return False
+    outside = 2.0 * float(curve.max()) + 1.0
+    other, _, _ = _curve_minimum(np.where(window, curve, outside), inv)
+    return 1.0 / other <= 1.0 / depth - 2.0 * float(inv[1] - inv[0])
 
 
 def _stands(blob: Blob, depth: float, sweep: PlaneSweep) -> bool:
