@@ -5,6 +5,7 @@ Not a test. Run from the repository root with the packages importable, e.g.::
     python bench/memory_targets.py closed-loop --world worlds/inspection.yaml \\
         --random 41 42 43 --seeds 3 --cycles 204 --out runs/memory_targets
     python bench/memory_targets.py replay test/data/memory_queries.csv.gz
+    python bench/memory_targets.py replay test/data/memory_queries.csv.gz --unknown T1 T2 T3
 
 ``closed-loop`` writes each random world (``roger_sim.worldgen.random_world(8, 3, seed,
 size_range=(0.08, 0.14))``, the recipe of worlds/inspection.yaml) to OUT/worlds, runs
@@ -16,6 +17,8 @@ visited, empty attention shifts. ``replay`` replays recorded query sets through 
 memories (``roger_experiments.record_queries.replay``) and prints per world the false
 novelty and false identification rates of the final trials, and the memory's counts
 (vetoes, non-final identifications held back for want of the weight, refinements).
+``--unknown`` marks the named features unknown in every recorded look before the replay
+(the memory then decides without them: an ablation of a feature, not of the network).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from typing import Any
 import torch
 import yaml
 
+from roger_common.types import FEATURE_NAMES
 from roger_experiments.compare import compare
 from roger_experiments.core_loop import run_core
 from roger_experiments.record_queries import read_csv, replay
@@ -104,6 +108,10 @@ def replay_sets(args: argparse.Namespace) -> None:
     """Recorded query sets through fresh memories; rates per world."""
     torch.set_num_threads(1)
     queries = [q for path in args.files for q in read_csv(path)]
+    drop = [FEATURE_NAMES.index(name) for name in args.unknown]
+    if drop:
+        for q in queries:
+            q.known[drop] = False
     memories: list[AssociativeMemory] = []
 
     def make() -> AssociativeMemory:
@@ -151,6 +159,8 @@ def main() -> None:
     p.set_defaults(func=closed_loop)
     r = sub.add_parser("replay", help="recorded query sets through fresh memories")
     r.add_argument("files", type=Path, nargs="+")
+    r.add_argument("--unknown", nargs="*", default=[], choices=FEATURE_NAMES,
+                   help="features to mark unknown in every look (e.g. T1 T2 T3)")
     r.set_defaults(func=replay_sets)
     args = parser.parse_args()
     args.func(args)
