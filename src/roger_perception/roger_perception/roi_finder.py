@@ -248,9 +248,10 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
     Each side is measured on the outline's pixels within a pixel of its extreme column and
     the ground ring beside them, at the hypotheses within the object's own extent (its
     width, as deep as wide) of the object's ``depth``: a side has few pixels, and a
-    similar edge elsewhere in the other eye must not capture it. A side whose ring meets
-    another object (it is hidden there) or whose cost curve is too flat or too thin is
-    not measured.
+    similar edge elsewhere in the other eye must not capture it. Another object's pixels
+    in a side's ring are left out of its curve; unless the plane sweep puts them two or
+    more hypotheses behind the side (``_behind``), that object may hide the side, and it
+    is not measured. Nor is a side whose cost curve is too flat or too thin.
     """
     inv = sweep.inverse_depths
     extent = (blob.bbox[2] - blob.bbox[0]) * depth / sweep.camera.focal_px  # width, m
