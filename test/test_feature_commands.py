@@ -137,13 +137,16 @@ def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merg
                                    (obj,) if merged is None else merged, roi)
 
     looks = [look("a", 0.51, 0.0), look("a", 0.49, 0.0),      # 1 cm off, 1 cm from their mean
-             look("b", 0.8, 0.34),                            # 4 cm off
+             look("a", 0.50, 0.0),                            # on the centre
+             look("b", 0.8, 0.34),                            # 4 cm off, its only look
              look("a", 0.9, 0.9, cut=True), look("a", 0.9, 0.9, purity=0.5),
              look("b", 0.9, 0.9, merged=("a", "b"))]          # not scored
     p = feature_report.position_stats(looks, world)
-    assert p["looks"] == 3
-    assert p["error_median"] == pytest.approx(0.01)
+    assert p["looks"] == 4
+    assert p["error_median"] == pytest.approx(0.01)   # 0, 0.01, 0.01, 0.04
     assert p["error_max"] == pytest.approx(0.04)
     assert p["over_3cm"] == 1
-    assert p["jitter_median"] == pytest.approx(0.01)  # b's one look is its own mean: 0
+    # a's three looks lie 0.01, 0.01 and 0 from their mean; b's one look shows no jitter.
+    assert p["jitter_median"] == pytest.approx(0.01)
+    assert p["jitter_p95"] == pytest.approx(0.01)
     assert feature_report.position_stats([], world)["looks"] == 0

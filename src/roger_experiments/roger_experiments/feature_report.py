@@ -259,8 +259,9 @@ def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
 def position_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     """Where ROIs are placed: x, y of every look at one object (uncut, pure, no merge)
     against its footprint centre (the world file's position), in metres, and how far one
-    object's looks lie from their own mean (the jitter between looks). Objects partly
-    hidden by another are included: this is what the spatial map receives."""
+    object's looks lie from their own mean (the jitter between looks; objects seen more
+    than once). Objects partly hidden by another are included: this is what the spatial
+    map receives."""
     centre = {o.name: np.asarray(o.position[:2], float) for o in world.objects}
     by_obj: dict[str, list[np.ndarray]] = defaultdict(list)
     for lk in looks:
@@ -270,11 +271,13 @@ def position_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     errors = np.asarray([float(np.hypot(*(p - centre[o]))) for o, ps in by_obj.items()
                          for p in ps])
     jitter = np.asarray([float(np.hypot(*(p - np.mean(ps, axis=0)))) for ps in by_obj.values()
-                         for p in ps])
+                         if len(ps) > 1 for p in ps])  # one look has no jitter to show
     if errors.size == 0:
         return {"looks": 0, "error_median": math.nan, "error_p95": math.nan,
                 "error_max": math.nan, "over_3cm": 0, "jitter_median": math.nan,
                 "jitter_p95": math.nan}
+    if jitter.size == 0:
+        jitter = np.full(1, math.nan)
     return {
         "looks": int(errors.size),
         "error_median": float(np.median(errors)),
