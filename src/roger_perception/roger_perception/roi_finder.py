@@ -281,8 +281,7 @@ def _between_extremes(blob: Blob, region: np.ndarray, sampled: SampledCosts,
         curve, n = sampled.curve(crop, v0, xa)
         if n < cfg.min_depth_pixels // 2:
             return None
-        outside = 2.0 * float(curve.max()) + 1.0  # no hypothesis outside the window wins
-        side_depth, _, rise = _curve_minimum(np.where(window, curve, outside), inv)
+        side_depth, _, rise = _window_minimum(curve, window, inv)
         if rise < cfg.min_depth_rise:
             return None
         if other.any() and not _behind(sampled.curve(other, v0, xa)[0], window, inv,
@@ -299,9 +298,16 @@ def _behind(curve: np.ndarray, window: np.ndarray, inv: np.ndarray, depth: float
     depth hypotheses behind ``depth``: that object cannot hide the side."""
     if not np.isfinite(curve).all():
         return False
-    outside = 2.0 * float(curve.max()) + 1.0
-    other, _, _ = _curve_minimum(np.where(window, curve, outside), inv)
+    other, _, _ = _window_minimum(curve, window, inv)
     return 1.0 / other <= 1.0 / depth - 2.0 * float(inv[1] - inv[0])
+
+
+def _window_minimum(curve: np.ndarray, window: np.ndarray, inverse_depths: np.ndarray
+                    ) -> tuple[float, float, float]:
+    """``_curve_minimum`` over the hypotheses in ``window`` only: no hypothesis outside
+    it wins."""
+    outside = 2.0 * float(curve.max()) + 1.0
+    return _curve_minimum(np.where(window, curve, outside), inverse_depths)
 
 
 def _stands(blob: Blob, depth: float, sweep: PlaneSweep) -> bool:
