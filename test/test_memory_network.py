@@ -43,12 +43,20 @@ def test_unit_activation_is_the_rms_z_over_common_known_features() -> None:
     d2 = net.unit_distances(torch.from_numpy(q[None]),
                             torch.from_numpy(kq[None]))[0].detach().numpy()
     sigma = np.sqrt(2.0) * np.asarray(CONFIG.feature_scale)
-    for j in range(3):
+    for j in (0, 2):
         common = known[j] & kq
         expected = (((q - looks[j]) / sigma) ** 2)[common].mean()
         assert d2[j] == pytest.approx(expected, rel=1e-4)
+    # A look never weighed is silent to a weighed query (it cannot vouch for a weight) ...
+    assert d2[1] == SILENT
     per_address = net.address_distances(torch.from_numpy(d2[None]))[0].detach().numpy()
-    np.testing.assert_allclose(per_address, [d2[0], min(d2[1], d2[2])], rtol=1e-6)
+    np.testing.assert_allclose(per_address, [d2[0], d2[2]], rtol=1e-6)
+    # ... and answers one whose weight is not measured either, over the common features.
+    kq[WEIGHT_INDEX] = False
+    d2 = net.unit_distances(torch.from_numpy(q[None]),
+                            torch.from_numpy(kq[None]))[0].detach().numpy()
+    expected = (((q - looks[1]) / sigma) ** 2)[known[1] & kq].mean()
+    assert d2[1] == pytest.approx(expected, rel=1e-4)
 
 
 def test_unknown_is_left_out_never_taken_as_zero() -> None:

@@ -35,6 +35,7 @@ from roger_common.configdoc import check_live_change
 from roger_common.errors import ConfigError, MemoryFileError, MessageError
 from roger_common.types import (
     FEATURE_DIM,
+    WEIGHT_INDEX,
     MatchOutcome,
     MatchResult,
     MemoryOp,
@@ -252,7 +253,9 @@ class AssociativeMemory:
             result = (MatchResult(MatchOutcome.NEW, -1, 0.0) if vetoed else
                       MatchResult(MatchOutcome.IDENTIFIED, winner, share))
         else:
-            covered = not np.any(self._known[mine].any(axis=0) & ~k)
+            # Touch can still tell: a look whose weight is not measured yet is not
+            # identified before a haptic improvement (also not as an object never weighed).
+            covered = bool(k[WEIGHT_INDEX]) and not np.any(self._known[mine].any(axis=0) & ~k)
             if not covered and not vetoed and share >= self._config.identify_share:
                 self.stats.coverage_holds += 1
             held = not covered or share < self._config.identify_share

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES
+from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX
 from roger_memory.config import MemoryConfig
 
 #: Activation standing in for "no unit can answer" (finite, so that gradients stay finite).
@@ -214,7 +214,9 @@ class AssociativeNetwork(nn.Module):
 
     def unit_distances(self, x: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
         """Mean squared z of inputs to every unit, (n, n_units); SILENT where too few
-        features are common.
+        features are common, and where the input's weight is measured and the unit's is
+        not (a look of an object never weighed cannot vouch for a weighed one: on sight
+        alone it takes in objects of every weight; docs/memory.md).
 
         Computed as three matrix products, so a match costs one small product per feature
         set whatever the number of units.
@@ -227,8 +229,9 @@ class AssociativeNetwork(nn.Module):
         sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
         n = kf @ m.T
         d2 = sq.clamp_min(0.0) / n.clamp_min(1.0)
-        return torch.where(n >= self.min_common_features, d2.clamp_max(SILENT),
-                           torch.full_like(d2, SILENT))
+        untouched = k[:, WEIGHT_INDEX:WEIGHT_INDEX + 1] & ~self.unit_known[:, WEIGHT_INDEX]
+        return torch.where((n >= self.min_common_features) & ~untouched,
+                           d2.clamp_max(SILENT), torch.full_like(d2, SILENT))
 
     def address_distances(self, d2: torch.Tensor) -> torch.Tensor:
         """Per address, the activation of its nearest unit: (n, n_addresses)."""
