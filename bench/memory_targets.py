@@ -4,11 +4,15 @@ Not a test. Run from the repository root with the packages importable, e.g.::
 
     python bench/memory_targets.py closed-loop --world worlds/inspection.yaml \\
         --random 41 42 43 --seeds 3 --cycles 204 --out runs/memory_targets
+    python bench/memory_targets.py closed-loop --recipe far --recipe crowded \\
+        --random 121 --seeds 1 --out runs/recipes
     python bench/memory_targets.py replay test/data/memory_queries.csv.gz
     python bench/memory_targets.py replay test/data/memory_queries.csv.gz --unknown T1 T2 T3
 
 ``closed-loop`` writes each random world (``roger_sim.worldgen.random_world(8, 3, seed,
-size_range=(0.08, 0.14))``, the recipe of worlds/inspection.yaml) to OUT/worlds, runs
+size_range=(0.08, 0.14))``, the recipe of worlds/inspection.yaml, or another of
+``RECIPES`` named by ``--recipe``: small, large, textured, touching objects, objects out
+of reach, crowded) to OUT/worlds, runs
 ``roger compare --in-process`` on every world (both policies, ``--seeds`` run seeds) and
 prints, per run, the figures the project is judged by (computed as
 shared/tools/run_figures.py computes them): identification and novelty precision (1.0
@@ -39,15 +43,31 @@ from roger_experiments.compare import compare
 from roger_experiments.core_loop import run_core
 from roger_experiments.record_queries import read_csv, replay
 from roger_memory.memory import AssociativeMemory, MemoryStats
-from roger_sim.world import load_world, world_to_dict
+from roger_sim.world import TEXTURES, load_world, world_to_dict
 from roger_sim.worldgen import random_world
 
+#: Recipes of random worlds (keyword arguments of ``random_world``); ``inspection`` is the
+#: recipe of worlds/inspection.yaml, the others vary one thing the memory has to hold
+#: through (docs/memory.md, "Worlds of other recipes").
+RECIPES: dict[str, dict[str, Any]] = {
+    "inspection": dict(n_categories=8, copies=3, size_range=(0.08, 0.14)),
+    "small": dict(n_categories=4, copies=5, size_range=(0.05, 0.08)),
+    "large": dict(n_categories=6, copies=2, size_range=(0.15, 0.22)),
+    "textured": dict(n_categories=8, copies=3, size_range=(0.08, 0.14), textures=TEXTURES),
+    "touching": dict(n_categories=5, copies=3, size_range=(0.08, 0.14), min_gap=0.0),
+    "far": dict(n_categories=8, copies=3, size_range=(0.08, 0.14), out_of_reach=3),
+    "crowded": dict(n_categories=12, copies=3, size_range=(0.06, 0.10)),
+}
 
-def write_random_world(seed: int, folder: Path) -> Path:
-    """The random world of ``seed`` (inspection's recipe) as a world file."""
+
+def write_random_world(seed: int, folder: Path, recipe: str = "inspection") -> Path:
+    """The random world of ``seed`` and ``recipe`` (``RECIPES``) as a world file."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"random_8x3_{seed}.yaml"
-    world = random_world(8, 3, seed=seed, size_range=(0.08, 0.14))
+    kw = RECIPES[recipe]
+    name = (f"random_{kw['n_categories']}x{kw['copies']}_{seed}" if recipe == "inspection"
+            else f"{recipe}_{seed}")
+    path = folder / f"{name}.yaml"
+    world = random_world(seed=seed, name=name, **kw)
     path.write_text(yaml.safe_dump(world_to_dict(world), sort_keys=False))
     return path
 
@@ -75,7 +95,8 @@ def figures(run: Path, world: Path) -> dict[str, Any]:
 def closed_loop(args: argparse.Namespace) -> None:
     """Both policies on every world; one line of figures per run, then the summary."""
     torch.set_num_threads(1)
-    worlds = list(args.world) + [write_random_world(s, args.out / "worlds")
+    worlds = list(args.world) + [write_random_world(s, args.out / "worlds", recipe)
+                                 for recipe in args.recipe or ["inspection"]
                                  for s in args.random]
     seeds = list(range(args.seeds))
     lines = []
@@ -153,6 +174,8 @@ def main() -> None:
     p.add_argument("--world", type=Path, action="append", default=[])
     p.add_argument("--random", type=int, nargs="*", default=[],
                    help="seeds of random worlds (random_world(8, 3, seed))")
+    p.add_argument("--recipe", action="append", choices=sorted(RECIPES),
+                   help="recipe of the random worlds (repeatable; default inspection)")
     p.add_argument("--seeds", type=int, default=3, help="run seeds 0..N-1 per policy")
     p.add_argument("--cycles", type=int, default=204)
     p.add_argument("--out", type=Path, required=True)
