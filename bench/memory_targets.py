@@ -173,7 +173,7 @@ def main() -> None:
     p = sub.add_parser("closed-loop", help="roger compare on shipped and random worlds")
     p.add_argument("--world", type=Path, action="append", default=[])
     p.add_argument("--random", type=int, nargs="*", default=[],
-                   help="seeds of random worlds (random_world(8, 3, seed))")
+                   help="seeds of random worlds (one world per seed and --recipe)")
     p.add_argument("--recipe", action="append", choices=sorted(RECIPES),
                    help="recipe of the random worlds (repeatable; default inspection)")
     p.add_argument("--seeds", type=int, default=3, help="run seeds 0..N-1 per policy")
