@@ -51,9 +51,11 @@ def _look(x: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.nda
 
 def _moved(x: np.ndarray, distance: float, rng: np.random.Generator,
            known: np.ndarray = ALL_KNOWN) -> np.ndarray:
-    """``x`` moved by an RMS z-distance ``distance`` in a random direction."""
+    """``x`` moved by a (weighted, as the memory measures it) RMS z-distance ``distance``
+    in a random direction."""
+    w = np.asarray(CONFIG.feature_weight)
     d = rng.standard_normal(FEATURE_DIM) * known
-    d /= np.sqrt((d ** 2).sum() / known.sum())
+    d /= np.sqrt((w * d ** 2).sum() / (w * known).sum())
     return (x + d * distance * SIGMA).astype(np.float32)
 
 
@@ -120,7 +122,9 @@ def test_a_match_that_identifies_nothing_changes_nothing(ten) -> None:
 def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None:
     """Two objects that differ only in W: without W no non-final identification (vision
     cannot exclude the twin); with W each is identified as itself; the final trial
-    decides on what is known."""
+    decides on what is known: without W it takes a look for one of the twins (the looks
+    carry the calibrated repeat noise, of which the acceptance distance keeps 95 %: a
+    few may come out new, none as the third object)."""
     x = _distinct_patterns(3, seed=12)
     x[2] = x[1]
     x[1, WEIGHT_INDEX], x[2, WEIGHT_INDEX] = 0.15, 0.45
@@ -128,6 +132,7 @@ def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None
     for p in x:
         memory.store(p, ALL_KNOWN)
     rng = np.random.default_rng(3)
+    twin = 0
     for which in (1, 2):
         for _ in range(10):
             q = _look(x[which], rng)
@@ -138,8 +143,9 @@ def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None
             final = memory.match(q, ALL_KNOWN, final_trial=True)
             assert final.outcome == MatchOutcome.NEW or final.address == which
             final_w = memory.match(q, W_UNKNOWN, final_trial=True)
-            assert (final_w.outcome, final_w.address in (1, 2)) == (MatchOutcome.IDENTIFIED,
-                                                                    True)
+            assert final_w.outcome == MatchOutcome.NEW or final_w.address in (1, 2)
+            twin += final_w.outcome == MatchOutcome.IDENTIFIED
+    assert twin >= 17
 
 
 def test_a_heavy_twin_of_a_stored_light_object_is_new() -> None:

@@ -23,7 +23,7 @@ CONFIG = MemoryConfig()
 
 def _net(looks: np.ndarray, known: np.ndarray, addresses: list[int]) -> AssociativeNetwork:
     net = AssociativeNetwork(CONFIG.feature_scale, CONFIG.identify_distance,
-                             CONFIG.min_common_features)
+                             CONFIG.min_common_features, CONFIG.feature_weight)
     for a in range(max(addresses) + 1):
         net.add_address()
     for x, k, a in zip(looks, known, addresses, strict=True):
@@ -31,7 +31,12 @@ def _net(looks: np.ndarray, known: np.ndarray, addresses: list[int]) -> Associat
     return net
 
 
-def test_unit_activation_is_the_rms_z_over_common_known_features() -> None:
+def _weighted_mean(z2: np.ndarray, common: np.ndarray) -> float:
+    w = np.asarray(CONFIG.feature_weight)
+    return float((w * z2)[common].sum() / w[common].sum())
+
+
+def test_unit_activation_is_the_weighted_mean_squared_z_over_common_known_features() -> None:
     rng = np.random.default_rng(0)
     looks = rng.random((3, FEATURE_DIM)).astype(np.float32)
     known = np.ones((3, FEATURE_DIM), bool)
@@ -45,7 +50,7 @@ def test_unit_activation_is_the_rms_z_over_common_known_features() -> None:
     sigma = np.sqrt(2.0) * np.asarray(CONFIG.feature_scale)
     for j in (0, 2):
         common = known[j] & kq
-        expected = (((q - looks[j]) / sigma) ** 2)[common].mean()
+        expected = _weighted_mean(((q - looks[j]) / sigma) ** 2, common)
         assert d2[j] == pytest.approx(expected, rel=1e-4)
     # A look never weighed is silent to a weighed query (it cannot vouch for a weight) ...
     assert d2[1] == SILENT
@@ -55,7 +60,7 @@ def test_unit_activation_is_the_rms_z_over_common_known_features() -> None:
     kq[WEIGHT_INDEX] = False
     d2 = net.unit_distances(torch.from_numpy(q[None]),
                             torch.from_numpy(kq[None]))[0].detach().numpy()
-    expected = (((q - looks[1]) / sigma) ** 2)[known[1] & kq].mean()
+    expected = _weighted_mean(((q - looks[1]) / sigma) ** 2, known[1] & kq)
     assert d2[1] == pytest.approx(expected, rel=1e-4)
 
 
@@ -190,6 +195,9 @@ def test_student_t_noise_has_a_heavier_tail_than_a_gaussian() -> None:
     ("novel_far", 0.5),
     ("prior_weight", -1.0),
     ("unknown_feature_prob", 2.0),
+    ("feature_weight", (1.0,) * 10),
+    ("feature_weight", (0.0,) * 11),
+    ("feature_weight", (-1.0,) + (1.0,) * 10),
     ("maskable_features", ("Z",)),
 ])
 def test_config_rejects_bad_value_naming_field(field: str, value: object) -> None:

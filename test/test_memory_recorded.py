@@ -20,6 +20,7 @@ from roger_experiments.record_queries import Query, ReplayScore, read_csv, repla
 from roger_memory.calibration import calibrate
 from roger_memory.config import (
     CALIBRATED_FEATURE_SCALE,
+    CALIBRATED_FEATURE_WEIGHT,
     CALIBRATED_IDENTIFY_DISTANCE,
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
@@ -68,10 +69,44 @@ def test_the_shipped_calibration_is_what_the_recorded_looks_give() -> None:
     assert cal.identify_distance == pytest.approx(CALIBRATED_IDENTIFY_DISTANCE, abs=0.01)
     assert cal.noise_dof == pytest.approx(CALIBRATED_NOISE_DOF, abs=0.1)
     np.testing.assert_allclose(cal.veto, CALIBRATED_VETO, rtol=0.01, atol=5e-4)
+    np.testing.assert_allclose(cal.feature_weight, CALIBRATED_FEATURE_WEIGHT, rtol=0.01,
+                               atol=2e-3)
     # The category-level spread is wider than one object's look-to-look scatter: the
     # intensity of a copy seen at another place varies 2-6 times more.
     assert np.all(cal.feature_scale >= cal.entry_scale)
     assert cal.feature_scale[2] > 5 * cal.entry_scale[2]
+
+
+def test_information_weights_follow_what_a_feature_tells_apart() -> None:
+    """A feature that varies between entries no more than between two looks of one
+    category tells nothing and weighs ~0; the one that parts categories most weighs most.
+    Synthetic looks: 12 categories, 3 entries (copies) each, 4 looks per entry."""
+    rng = np.random.default_rng(5)
+    n_cat, copies, looks = 12, 3, 4
+    centre = rng.random((n_cat, 11)) * np.linspace(1.0, 0.1, 11)  # feature 0 parts most
+    centre[:, 1] = 0.5                                              # feature 1: nothing
+    x, entry = [], []
+    for c in range(n_cat):
+        for e in range(copies):
+            copy = centre[c] + rng.normal(0.0, 0.01, 11)
+            for _ in range(looks):
+                x.append(copy + rng.normal(0.0, 0.005, 11))
+                entry.append(c * copies + e)
+    x = np.clip(np.array(x), 0.0, 1.0)
+    cal = calibrate(x, np.ones_like(x, bool), np.zeros(len(x)), np.array(entry))
+    assert cal.feature_weight.mean() == pytest.approx(1.0)
+    assert cal.feature_weight[1] < 0.15 * cal.feature_weight[0]
+    assert int(np.argmax(cal.feature_weight)) == 0
+
+
+def test_the_network_itself_turns_down_what_the_veto_did() -> None:
+    """With every feature weighted alike, two_rows' replay needs the distance veto 7 times
+    (19 with the calibration of before the weights): the weak features, S and T, dilute
+    a clear difference in I or W below the acceptance distance. Weighted by what each
+    feature tells, the network's own decision says new there, and the veto (kept as a
+    safety net) has little left to do."""
+    _, memories = _replayed("two_rows")
+    assert sum(m.stats.vetoes for m in memories) <= 2
 
 
 def test_an_untrained_network_of_the_same_shape_changes_most_decisions() -> None:

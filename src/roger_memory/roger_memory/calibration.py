@@ -15,10 +15,18 @@ What the robot knows about its looks, and uses here:
   differences between entries. Its sigma_f is the category-level spread of each feature
   (``feature_scale``), floored by ``entry_scale``.
 
+Not every feature tells categories apart as well: each gets an information weight
+``feature_weight``, the log of the ratio of how far looks of two entries lie apart
+(``between_scale``, the spread of all between-entry differences) to how far two looks of
+one category do (sigma_f): the nats of evidence for "same" that agreement in that feature
+carries (the log-likelihood ratio at zero difference of two Gaussians of those scales).
+A feature the robot measures no better than the world varies (S on plain objects) gets a
+weight near 0 and no longer dilutes the distance. The weights are scaled to mean 1.
+
 The acceptance distance is the ``identify_quantile`` of the robot's own repeat looks:
-the root-mean-square of the per-feature z-values, z_f = difference / (sqrt(2) sigma_f),
-of same-entry pairs measured with their own scale; the same distance is then applied with
-the category scale. The per-feature veto is the ``veto_quantile`` of one feature's
+the weighted root-mean-square of the per-feature z-values, z_f = difference / (sqrt(2)
+sigma_f), of same-entry pairs measured with their own scale; the same distance is then
+applied with the category scale. The per-feature veto is the ``veto_quantile`` of one feature's
 difference between two looks of one entry that agree on the other features (repeats the
 robot accepts), scaled from the object's scatter to the category's.
 
@@ -43,6 +51,10 @@ class Calibration:
 
     Attributes:
         feature_scale: Per feature, the category-level spread sigma_f of one look.
+        feature_weight: Per feature, the information weight of its z^2 in the distance:
+            log(between_scale / feature_scale), >= 0, scaled to mean 1.
+        between_scale: Per feature, the spread of one look among looks of different
+            entries (MAD of their differences, Gaussian-consistent, / sqrt 2).
         entry_scale: Per feature, the spread of one look among the looks of one entry.
         identify_distance: RMS z-distance within which a look is taken for a repeat.
         noise_dof: Degrees of freedom of a multivariate Student-t whose RMS has the same
@@ -55,6 +67,8 @@ class Calibration:
     """
 
     feature_scale: np.ndarray
+    feature_weight: np.ndarray
+    between_scale: np.ndarray
     entry_scale: np.ndarray
     identify_distance: float
     noise_dof: float
@@ -64,21 +78,34 @@ class Calibration:
     pairs_between: int
 
 
-def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Root-mean-square z over the common features; z_f = delta_f / (sqrt(2) scale_f).
+def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
+          weight: np.ndarray | None = None) -> np.ndarray:
+    """Weighted root-mean-square z over the common features:
+    sqrt(sum_f w_f z_f^2 / sum_f w_f), z_f = delta_f / (sqrt(2) scale_f).
 
     Args:
         delta: (n, F) differences of two looks.
         common: (n, F) features known in both.
         scale: (F,) spread of one look.
+        weight: (F,) weight of each feature (None: all 1, the plain RMS).
 
     Returns:
-        (n,) distances; inf where nothing is common.
+        (n,) distances; inf where no feature of positive weight is common.
     """
-    z2 = (delta / (np.sqrt(2.0) * scale)) ** 2 * common
-    n = common.sum(axis=1)
+    w = np.ones(delta.shape[1]) if weight is None else np.asarray(weight, np.float64)
+    cw = common * w
+    z2 = (delta / (np.sqrt(2.0) * scale)) ** 2 * cw
+    n = cw.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, np.sqrt(z2.sum(axis=1) / np.maximum(n, 1)), np.inf)
+        return np.where(n > 0, np.sqrt(z2.sum(axis=1) / np.where(n > 0, n, 1.0)), np.inf)
+
+
+def information_weight(between_scale: np.ndarray, feature_scale: np.ndarray) -> np.ndarray:
+    """log(between / feature scale) per feature, floored at 0, scaled to mean 1."""
+    w = np.maximum(np.log(np.asarray(between_scale) / np.asarray(feature_scale)), 0.0)
+    if not np.any(w > 0):
+        return np.ones_like(w)
+    return w / w.mean()
 
 
 def _pairs(run: np.ndarray, entry: np.ndarray, same_entry: bool, max_pairs: int,
@@ -207,10 +234,14 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         scale = np.maximum(np.sqrt((w * d1 ** 2).sum(axis=0) / (2.0 * w.sum(axis=0))),
                            entry_scale)
 
+    between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
+    weight = information_weight(between_scale, scale)
     n_common = c0.sum(axis=1)
-    own = rms_z(d0, c0, entry_scale)[n_common >= min_common]
+    own = rms_z(d0, c0, entry_scale, weight)[n_common >= min_common]
     identify_distance = float(np.quantile(own, identify_quantile))
-    dims = int(np.median(n_common[n_common >= min_common]))
+    # The Student-t of the replay noise: as many independent features as the weights
+    # leave effective, (sum w)^2 / sum w^2 over all features.
+    dims = max(1, int(round(weight.sum() ** 2 / (weight ** 2).sum())))
     dof = student_t_dof(identify_distance, identify_quantile, dims, seed)
     # The veto: per feature, the ``veto_quantile`` of its difference between two looks of
     # one entry that the robot itself accepts as repeats on the other features (RMS z
@@ -224,10 +255,11 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]
-                  & (rms_z(d0, others, entry_scale) <= identify_distance))
+                  & (rms_z(d0, others, entry_scale, weight) <= identify_distance))
         veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
                    * scale[f] / entry_scale[f])
-    return Calibration(feature_scale=scale, entry_scale=entry_scale,
+    return Calibration(feature_scale=scale, feature_weight=weight,
+                       between_scale=between_scale, entry_scale=entry_scale,
                        identify_distance=identify_distance, noise_dof=dof, veto=veto,
                        same_share=share,
                        pairs_same_entry=len(i0), pairs_between=len(i1))

@@ -24,11 +24,14 @@ ARCHITECTURE_FIELDS: tuple[str, ...] = ()
 CALIBRATED_FEATURE_SCALE: tuple[float, ...] = (
     0.02549, 0.03263, 0.04087, 0.00494, 0.00377, 0.00425,
     0.03008, 0.02672, 0.03192, 0.00476, 0.01027)
-CALIBRATED_IDENTIFY_DISTANCE: float = 2.18
+CALIBRATED_FEATURE_WEIGHT: tuple[float, ...] = (
+    1.483, 1.230, 0.948, 0.431, 0.564, 0.611,
+    0.559, 0.494, 0.050, 1.633, 2.998)
+CALIBRATED_IDENTIFY_DISTANCE: float = 2.00
 CALIBRATED_VETO: tuple[float, ...] = (
-    0.1351, 0.1987, 0.2817, 0.0405, 0.0290, 0.0345,
-    0.2668, 0.2202, 0.2772, 0.0360, 0.0390)
-CALIBRATED_NOISE_DOF: float = 4.9
+    0.1344, 0.1988, 0.2749, 0.0405, 0.0293, 0.0348,
+    0.2703, 0.2251, 0.2928, 0.0363, 0.0390)
+CALIBRATED_NOISE_DOF: float = 6.45
 
 
 @dataclass(frozen=True)
@@ -39,7 +42,11 @@ class MemoryConfig:
         feature_scale: Per feature (FEATURE_NAMES order), the spread sigma_f of one look of
             a category around another look of it (calibrated, docs/memory.md); the initial
             scale of the network's radial units.
-        identify_distance: Acceptance distance tau: the RMS over the common known
+        feature_weight: Per feature, the weight of its z_f^2 in every distance: its
+            information, log(spread between entries / sigma_f), mean 1 (calibrated); 0
+            leaves a feature out of the distance (it still counts towards
+            ``min_common_features``).
+        identify_distance: Acceptance distance tau: the weighted RMS over the common known
             features of z_f = difference / (sqrt(2) sigma_f) within which a look counts as
             a repeat (calibrated); the initial bias of the network's novel unit.
         noise_dof: Degrees of freedom of the Student-t repeat noise the replay adds
@@ -78,8 +85,10 @@ class MemoryConfig:
 
     feature_scale: tuple[float, ...] = field(default=CALIBRATED_FEATURE_SCALE, metadata={
         "doc": "Calibrated spread of one look of a category, per feature"})
+    feature_weight: tuple[float, ...] = field(default=CALIBRATED_FEATURE_WEIGHT, metadata={
+        "doc": "Calibrated information weight of each feature in the distance"})
     identify_distance: float = field(default=CALIBRATED_IDENTIFY_DISTANCE, metadata={
-        "doc": "Calibrated acceptance distance tau (RMS z over common features)"})
+        "doc": "Calibrated acceptance distance tau (weighted RMS z over common features)"})
     noise_dof: float = field(default=CALIBRATED_NOISE_DOF, metadata={
         "doc": "Calibrated Student-t degrees of freedom of the replay noise"})
     veto: tuple[float, ...] = field(default=CALIBRATED_VETO, metadata={
@@ -131,6 +140,14 @@ class MemoryConfig:
                     isinstance(v, float) and math.isfinite(v) and v > 0 for v in value):
                 _fail(name, getattr(self, name),
                       f"{len(FEATURE_NAMES)} positive numbers, one per feature")
+        weight = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                       else v for v in self.feature_weight)
+        object.__setattr__(self, "feature_weight", weight)
+        if len(weight) != len(FEATURE_NAMES) or not all(
+                isinstance(v, float) and math.isfinite(v) and v >= 0 for v in weight) or \
+                sum(weight) <= 0:
+            _fail("feature_weight", self.feature_weight,
+                  f"{len(FEATURE_NAMES)} numbers >= 0, one per feature, not all 0")
         _positive("identify_distance", self.identify_distance)
         _positive("noise_dof", self.noise_dof)
         _positive_int("min_common_features", self.min_common_features)

@@ -41,6 +41,7 @@ from roger_common.types import (
     MemoryOp,
     MemoryRequest,
 )
+from roger_memory.calibration import rms_z
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -110,7 +111,7 @@ class AssociativeMemory:
         self._addresses = np.zeros(0, np.int64)
         self._stored = np.zeros(0, bool)
         self._network = AssociativeNetwork(config.feature_scale, config.identify_distance,
-                                           config.min_common_features)
+                                           config.min_common_features, config.feature_weight)
         self._network.eval()
         self._focus_id = 0
         self._focus_looks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -178,7 +179,8 @@ class AssociativeMemory:
         return int(hits.min()) if hits.size else None
 
     def distances(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
-        """RMS z-distance (calibrated scales) of a pattern to each address's nearest look.
+        """Weighted RMS z-distance (calibrated scales and weights) of a pattern to each
+        address's nearest look, whatever the never-weighed rule (docs/memory.md).
 
         inf where no look shares ``min_common_features`` known features with it.
 
@@ -187,7 +189,7 @@ class AssociativeMemory:
         """
         x, k = _validate(features, known)
         d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
-                   self._config.min_common_features)
+                   self._config.min_common_features, self._config.feature_weight)
         out = np.full(self.size, np.inf)
         np.minimum.at(out, self._addresses, d)
         return out
@@ -417,7 +419,8 @@ class AssociativeMemory:
         out_x, out_k = [], []
         for fx, fk in looks:
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
-            d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features)[0]
+            d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
+                       self._config.feature_weight)[0]
             if d <= self._config.identify_distance and not (
                     np.array_equal(ck, k) and np.array_equal(np.where(ck, cx, 0), x)):
                 out_x.append(cx)
@@ -452,7 +455,7 @@ class AssociativeMemory:
                 break
             if self.find_exact(fx, fk) is not None:
                 continue
-            d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features)
+            d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features, cfg.feature_weight)
             if d.size and d.min() <= cfg.identify_distance:
                 self._append(address, fx[None], fk[None], stored=False)
                 added += 1
@@ -489,13 +492,13 @@ class AssociativeMemory:
 
 
 def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: np.ndarray,
-           min_common: int) -> np.ndarray:
-    """RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2) scale_f)."""
+           min_common: int, weight: tuple[float, ...]) -> np.ndarray:
+    """Weighted RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2)
+    scale_f): sqrt(sum w_f z_f^2 / sum w_f); inf with fewer than ``min_common`` common
+    features (or none of positive weight)."""
     common = ks & k
     n = common.sum(axis=1)
-    z2 = ((xs - x) / (np.sqrt(2.0) * scale)) ** 2 * common
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.sqrt(z2.sum(axis=1) / np.maximum(n, 1))
+    d = rms_z(xs - x, common, scale, np.asarray(weight))
     return np.where(n >= min_common, d, np.inf)
 
 

@@ -11,9 +11,11 @@ address is new. A tanh network's winner is as confident far from every stored pa
 near one (nothing in it measures "near"), so this one has a radial hidden layer:
 
 * hidden layer: one unit per stored look (its centre: the look's features, written in by
-  the store, then trained). Its activation is the mean squared z over the features known
-  both in the input and in the look, z_f = (x_f - c_f) / (sqrt(2) sigma_f), with one
-  trained scale sigma_f per feature (shared by all units). A unit that shares fewer than
+  the store, then trained). Its activation is the weighted mean squared z over the
+  features known both in the input and in the look, sum w_f z_f^2 / sum w_f,
+  z_f = (x_f - c_f) / (sqrt(2) sigma_f), with one trained scale sigma_f per feature
+  (shared by all units) and one calibrated information weight w_f per feature (how much
+  agreement in that feature tells; MemoryConfig.feature_weight). A unit that shares fewer than
   ``min_common_features`` known features with the input is silent. Unknown features (W
   before a haptic improvement) are left out, never taken as zero;
 * output layer: one unit per long-term-memory address, -gain / 2 * (its nearest look's
@@ -111,12 +113,20 @@ class AssociativeNetwork(nn.Module):
         feature_scale: Initial sigma_f per feature (MemoryConfig.feature_scale).
         identify_distance: Initial tau (MemoryConfig.identify_distance).
         min_common_features: Fewest common known features for a unit to answer.
+        feature_weight: Weight w_f of each feature's z^2 (MemoryConfig.feature_weight;
+            None: all 1). A calibrated constant, not trained, and not saved with the
+            weights (it comes with the configuration).
     """
 
     def __init__(self, feature_scale: tuple[float, ...], identify_distance: float,
-                 min_common_features: int) -> None:
+                 min_common_features: int,
+                 feature_weight: tuple[float, ...] | None = None) -> None:
         super().__init__()
         self.min_common_features = int(min_common_features)
+        weight = [1.0] * FEATURE_DIM if feature_weight is None else list(feature_weight)
+        self.register_buffer("weight", torch.tensor(weight, dtype=torch.float32),
+                             persistent=False)
+        self.weight: torch.Tensor
         self.log_scale = nn.Parameter(torch.log(torch.tensor(feature_scale, dtype=torch.float32)))
         self.log_tau = nn.Parameter(torch.tensor(math.log(identify_distance), dtype=torch.float32))
         self.log_gain = nn.Parameter(torch.zeros(()))
@@ -200,7 +210,8 @@ class AssociativeNetwork(nn.Module):
         """A network of the same shape whose parameters were never trained (for ablations):
         centres drawn uniformly in the feature range, scales, tau and gain drawn around 1,
         biases around 0. The units keep their known masks and addresses (the shape)."""
-        net = AssociativeNetwork(tuple([1.0] * FEATURE_DIM), 1.0, self.min_common_features)
+        net = AssociativeNetwork(tuple([1.0] * FEATURE_DIM), 1.0, self.min_common_features,
+                                 tuple(self.weight.tolist()))
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
         net.unit_address = self.unit_address.clone()
@@ -213,7 +224,7 @@ class AssociativeNetwork(nn.Module):
         return net
 
     def unit_distances(self, x: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-        """Mean squared z of inputs to every unit, (n, n_units); SILENT where too few
+        """Weighted mean squared z of inputs to every unit, (n, n_units); SILENT where too few
         features are common, and where the input's weight is measured and the unit's is
         not (a look of an object never weighed cannot vouch for a weighed one: on sight
         alone it takes in objects of every weight; docs/memory.md).
@@ -221,16 +232,17 @@ class AssociativeNetwork(nn.Module):
         Computed as three matrix products, so a match costs one small product per feature
         set whatever the number of units.
         """
-        inv = 0.5 * torch.exp(-2.0 * self.log_scale)          # 1 / (2 sigma^2)
+        inv = 0.5 * self.weight * torch.exp(-2.0 * self.log_scale)   # w / (2 sigma^2)
         kf = k.to(x.dtype)
         m = self.unit_known.to(x.dtype)
         c = self.centres * m
         kx = kf * x
         sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
         n = kf @ m.T
-        d2 = sq.clamp_min(0.0) / n.clamp_min(1.0)
+        wn = (kf * self.weight) @ m.T
+        d2 = sq.clamp_min(0.0) / wn.clamp_min(1e-6)
         untouched = k[:, WEIGHT_INDEX:WEIGHT_INDEX + 1] & ~self.unit_known[:, WEIGHT_INDEX]
-        return torch.where((n >= self.min_common_features) & ~untouched,
+        return torch.where((n >= self.min_common_features) & (wn > 0) & ~untouched,
                            d2.clamp_max(SILENT), torch.full_like(d2, SILENT))
 
     def address_distances(self, d2: torch.Tensor) -> torch.Tensor:
@@ -304,7 +316,7 @@ def train_replay(
     calibrated repeat noise (per feature sqrt(2) sigma_f times a Student-t of
     ``noise_dof`` degrees of freedom) with the maskable features (W) turned unknown at
     random; their target is their address. Novel samples (``novel_fraction`` of the
-    batch): stored looks moved by a random offset whose RMS z-distance lies between
+    batch): stored looks moved by a random offset whose weighted RMS z-distance lies between
     ``novel_near`` and ``novel_far`` times the calibrated tau; their target is the novel
     unit. One Adam step on the cross-entropy of the winner-take-all output, plus a pull of
     every centre towards its stored look, of the scales and tau towards the calibration
@@ -347,6 +359,7 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
     prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
     prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
     sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
+    weight = np.asarray(config.feature_weight)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.learning_rate)
     n_novel = round(config.batch_size * config.novel_fraction)
     n_repeat = config.batch_size - n_novel
@@ -369,7 +382,8 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
                 nov = rng.choice(usable, n_novel)
                 kn = k_all[nov]
                 direction = rng.standard_normal((n_novel, FEATURE_DIM)) * kn
-                norm = np.sqrt((direction ** 2).sum(axis=1) / np.maximum(kn.sum(axis=1), 1))
+                norm = np.sqrt((weight * direction ** 2).sum(axis=1)
+                               / np.maximum((weight * kn).sum(axis=1), 1e-9))
                 radius = config.identify_distance * rng.uniform(
                     config.novel_near, config.novel_far, n_novel)
                 offset = direction / np.maximum(norm, 1e-9)[:, None] * radius[:, None] * sigma
