@@ -244,8 +244,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     dims = max(1, int(round(weight.sum() ** 2 / (weight ** 2).sum())))
     dof = student_t_dof(identify_distance, identify_quantile, dims, seed)
     # The veto: per feature, the ``veto_quantile`` of its difference between two looks of
-    # one entry that the robot itself accepts as repeats on the other features (RMS z
-    # within the acceptance distance, own scale): an entry that slid onto a neighbour
+    # one entry that the robot itself accepts as repeats on the other features (weighted
+    # RMS z within the acceptance distance, own scale): an entry that slid onto a neighbour
     # pairs two objects' looks and is left out by its other features (one such entry on
     # inspection set the weight's 99.9th percentile of all same-entry pairs to 0.14).
     # Scaled from one object's scatter to the category's (feature_scale / entry_scale):

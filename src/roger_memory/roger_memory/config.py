@@ -132,22 +132,18 @@ class MemoryConfig:
         for name in self.maskable_features:
             if name not in FEATURE_NAMES:
                 _fail("maskable_features", self.maskable_features, f"names in {FEATURE_NAMES}")
-        for name in ("feature_scale", "veto"):
+        # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
+        for name, kind in (("feature_scale", "positive numbers"),
+                           ("veto", "positive numbers"), ("feature_weight", "numbers >= 0")):
             value = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                           else v for v in getattr(self, name))
             object.__setattr__(self, name, value)
             if len(value) != len(FEATURE_NAMES) or not all(
-                    isinstance(v, float) and math.isfinite(v) and v > 0 for v in value):
-                _fail(name, getattr(self, name),
-                      f"{len(FEATURE_NAMES)} positive numbers, one per feature")
-        weight = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-                       else v for v in self.feature_weight)
-        object.__setattr__(self, "feature_weight", weight)
-        if len(weight) != len(FEATURE_NAMES) or not all(
-                isinstance(v, float) and math.isfinite(v) and v >= 0 for v in weight) or \
-                sum(weight) <= 0:
-            _fail("feature_weight", self.feature_weight,
-                  f"{len(FEATURE_NAMES)} numbers >= 0, one per feature, not all 0")
+                    isinstance(v, float) and math.isfinite(v)
+                    and (v >= 0 if name == "feature_weight" else v > 0) for v in value):
+                _fail(name, getattr(self, name), f"{len(FEATURE_NAMES)} {kind}, one per feature")
+        if sum(self.feature_weight) <= 0:
+            _fail("feature_weight", self.feature_weight, "not every weight 0")
         _positive("identify_distance", self.identify_distance)
         _positive("noise_dof", self.noise_dof)
         _positive_int("min_common_features", self.min_common_features)

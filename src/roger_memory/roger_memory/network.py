@@ -124,9 +124,9 @@ class AssociativeNetwork(nn.Module):
         super().__init__()
         self.min_common_features = int(min_common_features)
         weight = [1.0] * FEATURE_DIM if feature_weight is None else list(feature_weight)
-        self.register_buffer("weight", torch.tensor(weight, dtype=torch.float32),
+        self.register_buffer("feature_weight", torch.tensor(weight, dtype=torch.float32),
                              persistent=False)
-        self.weight: torch.Tensor
+        self.feature_weight: torch.Tensor
         self.log_scale = nn.Parameter(torch.log(torch.tensor(feature_scale, dtype=torch.float32)))
         self.log_tau = nn.Parameter(torch.tensor(math.log(identify_distance), dtype=torch.float32))
         self.log_gain = nn.Parameter(torch.zeros(()))
@@ -211,7 +211,7 @@ class AssociativeNetwork(nn.Module):
         centres drawn uniformly in the feature range, scales, tau and gain drawn around 1,
         biases around 0. The units keep their known masks and addresses (the shape)."""
         net = AssociativeNetwork(tuple([1.0] * FEATURE_DIM), 1.0, self.min_common_features,
-                                 tuple(self.weight.tolist()))
+                                 tuple(self.feature_weight.tolist()))
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
         net.unit_address = self.unit_address.clone()
@@ -232,14 +232,14 @@ class AssociativeNetwork(nn.Module):
         Computed as three matrix products, so a match costs one small product per feature
         set whatever the number of units.
         """
-        inv = 0.5 * self.weight * torch.exp(-2.0 * self.log_scale)   # w / (2 sigma^2)
+        inv = 0.5 * self.feature_weight * torch.exp(-2.0 * self.log_scale)   # w / (2 sigma^2)
         kf = k.to(x.dtype)
         m = self.unit_known.to(x.dtype)
         c = self.centres * m
         kx = kf * x
         sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
         n = kf @ m.T
-        wn = (kf * self.weight) @ m.T
+        wn = (kf * self.feature_weight) @ m.T
         d2 = sq.clamp_min(0.0) / wn.clamp_min(1e-6)
         untouched = k[:, WEIGHT_INDEX:WEIGHT_INDEX + 1] & ~self.unit_known[:, WEIGHT_INDEX]
         return torch.where((n >= self.min_common_features) & (wn > 0) & ~untouched,
