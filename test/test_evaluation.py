@@ -12,6 +12,8 @@ from roger_experiments.compare import (
     RunResult,
     check_claims,
     check_completion,
+    errors_markdown,
+    read_cycles,
     report_markdown,
     sign_test_p,
     table2,
@@ -22,6 +24,8 @@ from roger_experiments.evaluation import (
     RunScorer,
     counters_from_rows,
     object_under_window,
+    rows_from_csv,
+    score_cycles,
 )
 
 S, V, H, M = (int(a) for a in Action)
@@ -51,6 +55,79 @@ def test_same_category_identifications_are_correct_others_are_not():
     assert res["identification_precision"] == pytest.approx(1 / 2)
     assert res["novelty_precision"] == pytest.approx(2 / 3)
     assert res["objects_visited"] == 3 and res["objects_in_world"] == 3
+
+
+def test_each_scored_mistake_is_kept_with_what_it_was_taken_for():
+    # a1, a2 one category; b another; b stands at (1.2, 0.3), the a's at (0.8, 0).
+    b = ObjectSpec(name="b", shape="box", position=(1.2, 0.3), size=0.2, intensity=99.0,
+                   weight=0.5)
+    scorer = RunScorer({o.name: o for o in (obj("a1"), obj("a2"), b)})
+
+    def at(r: CycleRow, x: float, y: float) -> CycleRow:
+        return CycleRow(**{**r.__dict__, "position": (x, y, 0.05)})
+
+    log = [row(2, M, "a1", "stored", address=0),
+           row(4, M, "a2", "mapped", address=0),            # right: no error
+           row(6, M, "b", "mapped", address=0),             # b taken for a1
+           row(8, M, "a2", "stored", address=1),            # a's category stored again
+           row(10, M, None, "stored", address=2),           # no single object in view
+           row(12, M, "b", "remapped", address=1),          # b taken for a2 (its store)
+           at(row(13, S, None, "undetermined"), 1.18, 0.3),  # window near b, empty
+           at(row(14, S, "a1", "lost"), -1.0, 0.0),          # lost: empty, far from all
+           row(15, S, "a1", "identified")]                   # a visit: no error
+    for r in log:
+        scorer.add(r)
+    got = [(e.cycle, e.kind, e.object, e.address, e.other) for e in scorer.errors]
+    assert got == [(6, "wrong_identification", "b", 0, "a1"),
+                   (8, "repeated_store", "a2", 1, "a1"),
+                   (10, "store_of_nothing", "", 2, ""),
+                   (12, "wrong_remap", "b", 1, "a2"),
+                   (13, "empty_shift", "", -1, "b"),
+                   (14, "empty_shift", "", -1, "a1")]
+    assert scorer.errors[4].distance_m == pytest.approx(0.02, abs=1e-9)
+    assert scorer.errors[5].distance_m == pytest.approx(1.8, abs=1e-9)
+    # The errors are the precisions' complements, one for one.
+    res = scorer.results()
+    wrong_ids = sum(e.kind == "wrong_identification" for e in scorer.errors)
+    assert res["identification_precision"] == pytest.approx(1 - wrong_ids / 2)
+    wrong_stores = sum(e.kind in ("repeated_store", "store_of_nothing") for e in scorer.errors)
+    assert res["novelty_precision"] == pytest.approx(1 - wrong_stores / 3)
+    text = errors_markdown([RunResult("straightforward", 3, {}, [],
+                                      [dict(zip(("cycle", "kind", "object", "address", "other",
+                                                 "distance_m"), e.as_csv(), strict=True))
+                                       for e in scorer.errors])])
+    assert "straightforward, seed 3" in text
+    assert "b **as** a1 x1" in text and "a2 (a1)" in text
+    assert "2 empty shifts: 1 near an object (b)" in text
+
+
+def test_a_finished_run_is_scored_again_from_its_files(tmp_path):
+    objs = [obj("a1"), obj("a2"), obj("b", weight=0.5)]
+    rec = RunRecorder(tmp_path, objs, {})
+    log = [CycleRow(1, "000", S, 0.0, 0.25, 1, "a1", "undetermined", "000", -1,
+                    (0.8, 0.01, 0.05), 1.5, True),
+           row(2, M, "a1", "stored", address=0), row(3, M, "b", "mapped", address=0),
+           CycleRow(4, "011", S, 0.0, None, 2, None, "undetermined", "000", -1,
+                    (0.9, 0.0, 0.05), 2.5, False)]
+    for r in log:
+        rec.add(r)
+    rec.counters = counters_from_rows(log)
+    metrics = rec.close(1.0)
+    rows = read_cycles(tmp_path / "cycles.csv")
+    again = rows_from_csv(rows)
+    assert [(r.cycle, r.action, r.true_object, r.outcome, r.address, r.converged)
+            for r in again] == [(r.cycle, r.action, r.true_object, r.outcome, r.address,
+                                 r.converged) for r in log]
+    assert again[0].position == pytest.approx((0.8, 0.01, 0.05))
+    assert again[0].td_error == pytest.approx(0.25) and again[1].position is None
+    scorer = score_cycles(rows, objs)
+    for key in ("identification_precision", "novelty_precision", "objects_visited"):
+        assert scorer.results()[key] == metrics[key]
+    # errors.csv is written with metrics.json and holds the scorer's errors.
+    written = read_cycles(tmp_path / "errors.csv")
+    assert [(e["cycle"], e["kind"], e["object"], e["other"]) for e in written] == [
+        ("3", "wrong_identification", "b", "a1"), ("4", "empty_shift", "", "a1")]
+    assert [e.as_csv() for e in scorer.errors] == [list(e.values()) for e in written]
 
 
 def test_map_update_takes_the_object_last_seen_for_its_roi():

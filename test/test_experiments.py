@@ -33,6 +33,8 @@ def test_short_compare_writes_every_file(no_leaks, tmp_path, ros_domain):
         assert m["attention_shifts"] + m["improvements"] + m["map_updates"] == 6
         assert m["map_updates"] == (m["positive_identifications"] + m["new_objects"]
                                    + m["remaps"])
+        errors = (out / "runs" / f"{policy}_seed0" / "errors.csv").read_text().splitlines()
+        assert errors[0] == "cycle,kind,object,address,other,distance_m"
     report = (out / "report.md").read_text()
     assert "Q-learning performs more attention shifts" in report
     # The Q-learning runs used the table trained first, on a world other than this one.

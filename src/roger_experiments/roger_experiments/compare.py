@@ -9,13 +9,15 @@ import csv
 import json
 import math
 import statistics
+from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from roger_common.atomic import atomic_write_bytes
 from roger_common.types import WorldSpec
+from roger_experiments.evaluation import ERROR_KINDS
 from roger_experiments.progress import ProgressBar, counters_info
 
 POLICIES: tuple[str, ...] = ("qlearning", "straightforward")
@@ -46,18 +48,69 @@ CLAIMS: tuple[tuple[str, int, str], ...] = (
 
 @dataclass(frozen=True)
 class RunResult:
-    """One finished run: its metrics and its cycle log."""
+    """One finished run: its metrics, its cycle log and its errors (errors.csv rows)."""
 
     policy: str
     seed: int
     metrics: dict[str, Any]
     rows: list[dict[str, str]]
+    errors: list[dict[str, str]] = field(default_factory=list)
 
 
 def read_cycles(path: Path) -> list[dict[str, str]]:
     """cycles.csv as a list of dicts."""
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+#: An empty shift this near an object (metres, ground plane) looked at a window spanning
+#: it and a neighbour, or a part of it; farther, at a place with no object.
+EMPTY_NEAR_M = 0.1
+
+
+def errors_markdown(results: list[RunResult]) -> str:
+    """What went wrong in each run, from its errors.csv: who was taken for whom, which
+    categories were stored again, where the empty attention shifts looked."""
+    lines = ["## What went wrong (ground truth)", "",
+             "Per run, from its errors.csv: identifications of an address stored from "
+             "another category (*object* **as** *the object the address was stored from*, "
+             "times), stores of a category already stored (*object* (*first stored*)), "
+             "stores while no single object filled the window, and attention shifts whose "
+             f"window showed no object (within {EMPTY_NEAR_M:g} m of an object: a window "
+             "spanning two objects or a part of one).", ""]
+    for r in results:
+        by_kind: dict[str, list[dict[str, str]]] = defaultdict(list)
+        for e in r.errors:
+            by_kind[e["kind"]].append(e)
+        parts = []
+        for kind in ERROR_KINDS:
+            errs = by_kind.get(kind, [])
+            if not errs:
+                continue
+            name = kind.replace("_", " ")
+            if kind in ("wrong_identification", "wrong_remap"):
+                pairs: dict[str, list[str]] = defaultdict(list)
+                for e in errs:
+                    pairs[e["other"] or "?"].append(e["object"] or "no single object")
+                detail = "; ".join(f"{', '.join(sorted(set(objs)))} **as** {other} x{len(objs)}"
+                                   for other, objs in sorted(pairs.items(),
+                                                             key=lambda kv: -len(kv[1])))
+            elif kind == "repeated_store":
+                detail = ", ".join(f"{e['object']} ({e['other'] or 'a loaded memory'})"
+                                   for e in errs)
+            elif kind == "empty_shift":
+                near = [e for e in errs if e["distance_m"]
+                        and float(e["distance_m"]) <= EMPTY_NEAR_M]
+                objs = sorted({e["other"] for e in near})
+                detail = (f"{len(near)} near an object ({', '.join(objs)})" if near
+                          else "none near an object")
+            else:
+                detail = f"cycles {', '.join(e['cycle'] for e in errs)}"
+            parts.append(f"{len(errs)} {name}{'s' if len(errs) > 1 else ''}: {detail}")
+        lines.append(f"- {r.policy}, seed {r.seed}: " + (". ".join(parts) if parts
+                                                        else "no error"))
+    lines.append("")
+    return "\n".join(lines)
 
 
 def mean_sd(values: list[float]) -> tuple[float, float]:
@@ -334,8 +387,10 @@ def write_outputs(out: Path, results: list[RunResult], world: str,
         indent=2) + "\n").encode())
     atomic_write_bytes(out / "table2.md", table2_markdown(table, world).encode())
     note = trained.markdown() if trained is not None else ""
-    atomic_write_bytes(out / "report.md",
-                       report_markdown(table, claims, world, note, completion).encode())
+    report = report_markdown(table, claims, world, note, completion)
+    if any(r.errors for r in results):
+        report += "\n" + errors_markdown(results)
+    atomic_write_bytes(out / "report.md", report.encode())
     plots.fig4(results, out / "fig4.png")
     plots.fig5(results, out / "fig5.png")
     if trained is not None and (path := trained.td_errors()) is not None:
@@ -367,8 +422,10 @@ def compare(world: Path, seeds: list[int], out: Path,
                     bar.update(len(done), f"running {policy}, seed {seed}")
                     run_dir = out / kind / f"{policy}_seed{seed}"
                     metrics = run(policy, seed, run_dir)
+                    errors = run_dir / "errors.csv"
                     done.append(RunResult(policy, seed, metrics,
-                                          read_cycles(run_dir / "cycles.csv")))
+                                          read_cycles(run_dir / "cycles.csv"),
+                                          read_cycles(errors) if errors.exists() else []))
                     bar.update(len(done), f"{policy}, seed {seed}: {metrics['cycles']} "
                                f"cycles, {counters_info(metrics)}")
         return done

@@ -14,11 +14,19 @@ Scoring rules (issue 7):
   (``object_under_window``); a "lost" cycle shows no object and visits nothing;
 - failed_goals: physical actions whose servo goal failed (``converged`` 0 in cycles.csv),
   e.g. a haptic improvement on an object beyond the arms' reach.
+
+Each scored mistake is also kept, one row of errors.csv (``ERROR_COLUMNS``), so that a run
+says what went wrong and not only how often: an identification of an address stored from
+another category (and which object it was stored from), a store of a category already
+stored (and its first object), a store while no single object filled the window, an
+attention shift whose window showed no object (and the nearest object on the ground plane:
+a few centimetres means a window spanning two objects, or a part of one).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from collections import Counter
@@ -40,6 +48,11 @@ CSV_COLUMNS: tuple[str, ...] = (
 #: show that object (a visit). Measured on three worlds: windows holding one object reach
 #: 0.67 or more, windows spanning two objects 0.26-0.53 for the larger (docs/attention.md).
 WINDOW_FILL = 0.5
+#: errors.csv columns (``ScoredError``).
+ERROR_COLUMNS: tuple[str, ...] = ("cycle", "kind", "object", "address", "other", "distance_m")
+#: ``ScoredError.kind`` values, in the order a report lists them.
+ERROR_KINDS: tuple[str, ...] = ("wrong_identification", "wrong_remap", "repeated_store",
+                                "store_of_nothing", "empty_shift")
 ACTION_NAMES: dict[int, str] = {
     Action.ATTENTION_SHIFT: "attention_shift",
     Action.VISUAL_IMPROVEMENT: "visual_improvement",
@@ -109,6 +122,35 @@ def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
     return names[idx] if idx < len(names) else None
 
 
+@dataclass(frozen=True)
+class ScoredError:
+    """One mistake of a run, judged on the ground truth (module docstring).
+
+    Attributes:
+        cycle: The cycle that made it (the map update of an identification or a store).
+        kind: One of ``ERROR_KINDS``.
+        object: The object in view ("" when no single object filled the window).
+        address: The memory address concerned (-1 for an empty shift).
+        other: wrong_identification / wrong_remap: the object the address was first stored
+            from ("" when a loaded memory stored it); repeated_store: the first object
+            stored of that category; empty_shift: the nearest world object.
+        distance_m: empty_shift: ground-plane distance from the window's position to
+            ``other``; NaN otherwise.
+    """
+
+    cycle: int
+    kind: str
+    object: str
+    address: int
+    other: str
+    distance_m: float = math.nan
+
+    def as_csv(self) -> list[str]:
+        """The error's cells in ERROR_COLUMNS order."""
+        d = "" if math.isnan(self.distance_m) else f"{self.distance_m:.4f}"
+        return [str(self.cycle), self.kind, self.object, str(self.address), self.other, d]
+
+
 @dataclass
 class RunScorer:
     """Accumulates the ground-truth scores of a run, cycle by cycle."""
@@ -124,6 +166,11 @@ class RunScorer:
     detections: int = 0
     correct_detections: int = 0
     last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
+    #: The object each address was first stored from (this run's stores only).
+    address_object: dict[int, str | None] = field(default_factory=dict)
+    #: The first object stored of each category (this run's stores only).
+    category_object: dict[Any, str] = field(default_factory=dict)
+    errors: list[ScoredError] = field(default_factory=list)
 
     def set_objects(self, objects: list[ObjectSpec]) -> None:
         """The world changed: keep scoring with its current objects (old ones stay known)."""
@@ -157,15 +204,28 @@ class RunScorer:
             self.failed_goals += 1
         if row.true_object is not None:
             self.visited.add(row.true_object)
+        if row.action == Action.ATTENTION_SHIFT and (row.true_object is None
+                                                     or row.outcome == "lost"):
+            self.errors.append(self._empty_shift(row))
         if row.action != Action.MAP_UPDATE:
             return
         cat = self.category(row.true_object)
+        seen = row.true_object if cat is not None else ""
         if row.outcome == "stored":
             self.detections += 1
-            if cat is not None and cat not in self.address_category.values():
+            if cat is None:
+                self.errors.append(ScoredError(row.cycle, "store_of_nothing", "", row.address,
+                                               ""))
+            elif cat not in self.address_category.values():
                 self.correct_detections += 1
-            if row.address >= 0:
-                self.address_category.setdefault(row.address, cat)
+            else:
+                self.errors.append(ScoredError(row.cycle, "repeated_store", seen, row.address,
+                                               self.category_object.get(cat, "")))
+            if cat is not None:
+                self.category_object.setdefault(cat, seen)
+            if row.address >= 0 and row.address not in self.address_category:
+                self.address_category[row.address] = cat
+                self.address_object[row.address] = seen
         elif row.outcome in ("mapped", "remapped"):
             stored = self.address_category.get(row.address, None)
             correct = int(cat is not None and stored == cat)
@@ -175,6 +235,20 @@ class RunScorer:
             else:
                 self.remaps += 1
                 self.correct_remaps += correct
+            if not correct:
+                kind = "wrong_identification" if row.outcome == "mapped" else "wrong_remap"
+                self.errors.append(ScoredError(row.cycle, kind, seen, row.address,
+                                               self.address_object.get(row.address) or ""))
+
+    def _empty_shift(self, row: CycleRow) -> ScoredError:
+        """An attention shift that showed no object, with the nearest object to its window."""
+        near, dist = "", math.nan
+        if row.position is not None and all(math.isfinite(v) for v in row.position[:2]):
+            for name, o in self.objects.items():
+                d = math.dist(row.position[:2], o.position)
+                if math.isnan(dist) or d < dist:
+                    near, dist = name, d
+        return ScoredError(row.cycle, "empty_shift", "", -1, near, dist)
 
     def results(self) -> dict[str, Any]:
         """The ground-truth part of metrics.json."""
@@ -253,13 +327,56 @@ class RunRecorder:
         return out
 
     def close(self, wall_seconds: float) -> dict[str, Any]:
-        """Close cycles.csv and write metrics.json; returns the metrics."""
+        """Close cycles.csv and write metrics.json and errors.csv; returns the metrics."""
         if not self._fh.closed:
             self._fh.close()
         metrics = self.metrics(wall_seconds)
+        write_errors(self.out_dir / "errors.csv", self.scorer.errors)
         atomic_write_bytes(self.out_dir / "metrics.json",
                            (json.dumps(metrics, indent=2) + "\n").encode())
         return metrics
+
+
+def write_errors(path: Path, errors: list[ScoredError]) -> None:
+    """errors.csv (``ERROR_COLUMNS``), written atomically."""
+    buf = io.StringIO()
+    out = csv.writer(buf)
+    out.writerow(ERROR_COLUMNS)
+    out.writerows(e.as_csv() for e in errors)
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def rows_from_csv(rows: list[dict[str, str]]) -> list[CycleRow]:
+    """cycles.csv's rows (as ``csv.DictReader`` gives them) as CycleRows again."""
+    actions = {name: a for a, name in ACTION_NAMES.items()}
+
+    def number(cell: str, default: float = math.nan) -> float:
+        return float(cell) if cell not in ("", None) else default
+
+    out = []
+    for r in rows:
+        pos = tuple(number(r.get(k, "")) for k in ("x", "y", "z"))
+        conv = r.get("converged", "")
+        td = number(r.get("td_error", ""))
+        out.append(CycleRow(
+            cycle=int(r["cycle"]), state=r["state"],
+            action=actions.get(r["action"], -1), reward=number(r["reward"], 0.0),
+            td_error=None if math.isnan(td) else td, roi=int(r["roi"]),
+            true_object=r["true_object"] or None, outcome=r["outcome"],
+            state_after=r.get("state_after", ""), address=int(r.get("address") or -1),
+            position=None if all(math.isnan(v) for v in pos) else pos,  # type: ignore[arg-type]
+            sim_time=number(r.get("sim_time", ""), 0.0),
+            converged=None if conv in ("", None) else bool(int(conv))))
+    return out
+
+
+def score_cycles(rows: list[dict[str, str]], objects: list[ObjectSpec]) -> RunScorer:
+    """Score a finished run's cycles.csv again (e.g. a run from before errors.csv existed):
+    the same scores and errors as the run's own scorer, world edits aside."""
+    scorer = RunScorer({o.name: o for o in objects})
+    for row in rows_from_csv(rows):
+        scorer.add(row)
+    return scorer
 
 
 def counters_from_rows(rows: list[CycleRow]) -> dict[str, int]:
