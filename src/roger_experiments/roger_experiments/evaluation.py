@@ -210,7 +210,7 @@ class RunScorer:
         if row.action != Action.MAP_UPDATE:
             return
         cat = self.category(row.true_object)
-        seen = row.true_object if cat is not None else ""
+        seen = (row.true_object or "") if cat is not None else ""
         if row.outcome == "stored":
             self.detections += 1
             if cat is None:
