@@ -167,9 +167,7 @@ class RunScorer:
     correct_detections: int = 0
     last_true_of_roi: dict[int, str | None] = field(default_factory=dict)
     #: The object each address was first stored from (this run's stores only).
-    address_object: dict[int, str | None] = field(default_factory=dict)
-    #: The first object stored of each category (this run's stores only).
-    category_object: dict[Any, str] = field(default_factory=dict)
+    address_object: dict[int, str] = field(default_factory=dict)
     errors: list[ScoredError] = field(default_factory=list)
 
     def set_objects(self, objects: list[ObjectSpec]) -> None:
@@ -219,10 +217,9 @@ class RunScorer:
             elif cat not in self.address_category.values():
                 self.correct_detections += 1
             else:
+                first = next(a for a, c in self.address_category.items() if c == cat)
                 self.errors.append(ScoredError(row.cycle, "repeated_store", seen, row.address,
-                                               self.category_object.get(cat, "")))
-            if cat is not None:
-                self.category_object.setdefault(cat, seen)
+                                               self.address_object.get(first, "")))
             if row.address >= 0 and row.address not in self.address_category:
                 self.address_category[row.address] = cat
                 self.address_object[row.address] = seen
@@ -238,7 +235,7 @@ class RunScorer:
             if not correct:
                 kind = "wrong_identification" if row.outcome == "mapped" else "wrong_remap"
                 self.errors.append(ScoredError(row.cycle, kind, seen, row.address,
-                                               self.address_object.get(row.address) or ""))
+                                               self.address_object.get(row.address, "")))
 
     def _empty_shift(self, row: CycleRow) -> ScoredError:
         """An attention shift that showed no object, with the nearest object to its window."""
