@@ -173,6 +173,23 @@ def test_a_window_shows_an_object_only_when_the_object_fills_most_of_it():
     assert object_under_window(labels_with(), names, (0, 0, 10, 10)) is None
 
 
+def test_a_window_that_is_a_small_objects_own_box_shows_it():
+    names = ("a", "b")
+    # A far prism 2 x 4 px in a 4 x 4 window (its ROI, a pixel of halo each side): the
+    # extent is half of the window, but the window is the object's own box.
+    far = labels_with((0, 13, 12, 15, 16))
+    assert object_under_window(far, names, (12, 12, 16, 16)) == "a"
+    # Two pixels of halo are still its box; three are not (a window of mostly ground).
+    assert object_under_window(far, names, (11, 10, 17, 18)) == "a"
+    assert object_under_window(far, names, (10, 12, 16, 16)) is None
+    # Part of the object outside the window: not its box.
+    assert object_under_window(far, names, (12, 12, 16, 14)) is None
+    # Another object's pixel in the window: a window between two objects shows neither.
+    near = far.copy()
+    near[12, 15] = 1
+    assert object_under_window(near, names, (12, 12, 16, 16)) is None
+
+
 def test_no_identification_gives_no_precision_not_zero():
     scorer = RunScorer({"a": obj("a")})
     scorer.add(row(1, S, "a", "undetermined"))
