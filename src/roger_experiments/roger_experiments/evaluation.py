@@ -125,18 +125,18 @@ def object_under_window(labels: np.ndarray, names: tuple[str, ...] | list[str],
     idx = int(np.bincount(objects).argmax())
     rows, cols = np.nonzero(window == idx)
     extent = (int(rows.max() - rows.min()) + 1) * (int(cols.max() - cols.min()) + 1)
-    if extent <= WINDOW_FILL * window.size and not _own_box(labels, window, idx, rows, cols):
+    if extent <= WINDOW_FILL * window.size and not (
+            rows.size == objects.size and _own_box(labels, window, idx, rows, cols)):
         return None
     return names[idx] if idx < len(names) else None
 
 
 def _own_box(labels: np.ndarray, window: np.ndarray, idx: int, rows: np.ndarray,
              cols: np.ndarray) -> bool:
-    """Whether ``window`` (a crop of ``labels``) is object ``idx``'s own box: no other
-    object in it, every pixel of ``idx`` in the frame inside it, and no side more than
-    WINDOW_HALO_PX beyond the object's pixels (``rows``, ``cols``: theirs in the window)."""
-    if bool(np.any((window >= 0) & (window != idx))):
-        return False
+    """Whether ``window`` (a crop of ``labels``), which holds no other object, is object
+    ``idx``'s own box: every pixel of ``idx`` in the frame inside it, and no side more
+    than WINDOW_HALO_PX beyond the object's pixels (``rows``, ``cols``: theirs in the
+    window)."""
     if rows.size != int(np.count_nonzero(labels == idx)):
         return False
     height, width = window.shape
