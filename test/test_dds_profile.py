@@ -86,3 +86,62 @@ def test_segment_holds_two_frame_bursts_at_256_px() -> None:
     # for the profile (if frames shrink below it, the profile can go).
     assert burst > 512 * 1024
     assert shm_segment_bytes() >= 2 * burst
+
+
+def test_a_restart_profile_is_the_default_with_a_participant_id(tmp_path: Path) -> None:
+    from roger_common.dds import profile_with_participant_id
+
+    path = profile_with_participant_id(31, tmp_path / "p.xml")
+    root = ET.parse(path).getroot()
+    rtps = root.find("f:participant/f:rtps", NS)
+    assert rtps is not None and rtps.findtext("f:participantID", namespaces=NS) == "31"
+    # Nothing else changes: the same transports, the same segment.
+    rtps.remove(rtps.find("f:participantID", NS))
+    default = ET.parse(PROFILE_FILE).getroot()
+    assert ET.tostring(root) == ET.tostring(default)
+    assert shm_segment_bytes(path) == shm_segment_bytes()
+
+
+def test_restart_ids_keep_every_port_valid_in_every_domain() -> None:
+    from roger_common.dds import RESTART_PARTICIPANT_IDS, user_unicast_port
+
+    # Domains 0-101 stay below Linux's ephemeral ports (32768), 215-232 below 65536.
+    assert user_unicast_port(101, max(RESTART_PARTICIPANT_IDS)) < 32768
+    assert user_unicast_port(232, max(RESTART_PARTICIPANT_IDS)) < 65536
+    # Above the ids a graph's own processes get; below 32, the ids LOCALHOST discovery
+    # announces to (two participants both at 32 or more never meet).
+    assert min(RESTART_PARTICIPANT_IDS) >= 8 and max(RESTART_PARTICIPANT_IDS) < 32
+
+
+def _graph(tmp_path: Path, env: dict[str, str]):
+    from roger_bringup.orchestrator import STATE_DIR_ENV, Graph
+
+    return Graph(tmp_path, dict(env, **{STATE_DIR_ENV: str(tmp_path / "state")}), {})
+
+
+def test_each_restarted_node_gets_a_participant_id_of_its_own(tmp_path: Path,
+                                                              monkeypatch) -> None:
+    import roger_bringup.orchestrator as orch
+    from roger_common.dds import RESTART_PARTICIPANT_IDS, user_unicast_port
+
+    first = min(RESTART_PARTICIPANT_IDS)
+    # The first id's port file exists: a participant of this domain has that id.
+    monkeypatch.setattr(orch, "shm_files", lambda: {
+        (f"fastrtps_port{user_unicast_port(9, first)}", 1),
+        (f"fastrtps_port{user_unicast_port(8, first + 1)}", 2)})  # another domain's
+    graph = _graph(tmp_path, orch.ros_environment(tmp_path, 9, base={}))
+    ids = []
+    for _ in range(3):
+        env = graph.restart_env()
+        root = ET.parse(env[PROFILE_ENV]).getroot()
+        ids.append(int(root.findtext("f:participant/f:rtps/f:participantID", namespaces=NS)))
+        assert env["ROS_DOMAIN_ID"] == "9"
+    assert ids == [first + 1, first + 2, first + 3]
+    assert graph.env[PROFILE_ENV] == str(PROFILE_FILE)  # the first processes' is unchanged
+
+
+def test_a_users_own_profile_is_kept_on_restart(tmp_path: Path) -> None:
+    import roger_bringup.orchestrator as orch
+
+    env = orch.ros_environment(tmp_path, 9, base={PROFILE_ENV: "/etc/mine.xml"})
+    assert _graph(tmp_path, env).restart_env()[PROFILE_ENV] == "/etc/mine.xml"

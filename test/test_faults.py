@@ -65,6 +65,19 @@ def rows_of(path: Path) -> list[list[str]]:
         return list(csv.reader(fh))[1:]
 
 
+def end_run(proc: subprocess.Popen) -> None:
+    """End a run that a failed assertion left going: SIGINT first, so that the orchestrator
+    stops its nodes and removes their /dev/shm files; SIGKILL only if that hangs."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+
+
 def wait_rows(proc: subprocess.Popen, path: Path, n: int, timeout: float = 120.0) -> None:
     """Wait until cycles.csv holds ``n`` rows (the run must keep going meanwhile)."""
     deadline = time.monotonic() + timeout
@@ -89,9 +102,7 @@ def test_kill_each_node_mid_run_loses_nothing(no_leaks, tmp_path, ros_domain):
             killed.append(pid)
         output, _ = proc.communicate(timeout=300)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        end_run(proc)
     assert proc.returncode == 0, output
     for name in NODE_MODULES:
         assert f"node {name} died (killed by SIGKILL)" in output, output
@@ -163,9 +174,7 @@ def test_callback_exception_is_logged_and_the_node_restarted(no_leaks, tmp_path,
         (out / "state" / "raise_in_callback").touch()
         output, _ = proc.communicate(timeout=300)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        end_run(proc)
     assert proc.returncode == 0, output
     assert f"node memory died (exit {CRASH_EXIT})" in output, output
     assert not (out / "state" / "raise_in_callback").exists(), "no request reached memory"
@@ -214,6 +223,33 @@ def wait_pid(proc: subprocess.Popen, name: str) -> int:
     return pid
 
 
+def shm_ports(pid: int) -> set[str]:
+    """The shared-memory ports (``fastrtps_port<N>``) process ``pid`` listens on: it holds
+    each port's ``_el`` lock file open."""
+    ports = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        name = target.rsplit("/", 1)[-1]
+        if target.startswith("/dev/shm/fastrtps_port") and name.endswith("_el"):
+            ports.add(name[:-len("_el")])
+    return ports
+
+
+def domain_ports(pid: int, domain: int) -> set[str]:
+    """``shm_ports`` of ``pid`` numbered after ``domain`` (7400 + 250 * domain + ...), once
+    it has opened them."""
+    deadline = time.monotonic() + 60
+    while True:
+        first = 7400 + 250 * domain
+        ports = {p for p in shm_ports(pid) if first <= int(p[len("fastrtps_port"):]) < first + 250}
+        if ports or time.monotonic() > deadline:
+            return ports
+        time.sleep(0.1)
+
+
 def stop_and_wait_restart(proc: subprocess.Popen, name: str, pid: int,
                           stopped: list[int]) -> float:
     """kill -STOP node ``name``; seconds until the orchestrator has replaced it."""
@@ -254,7 +290,13 @@ def test_stopped_node_is_detected_killed_and_restarted(no_leaks, tmp_path, ros_d
             assert heard(ros_domain, pid), f"{name} does not beat on /diagnostics"
         for name, pid in pids.items():
             wait_rows(proc, out / "cycles.csv", len(rows_of(out / "cycles.csv")) + 3)
+            old_ports = domain_ports(pid, ros_domain)
             detection[name] = stop_and_wait_restart(proc, name, pid, stopped)
+            # The new process listens on ports of its own: the stopped one's are still open
+            # in the peers that were sending to it (docs/reliability.md).
+            new_ports = domain_ports(wait_pid(proc, name), ros_domain)
+            assert old_ports and new_ports and not old_ports & new_ports, (old_ports,
+                                                                           new_ports)
         output, _ = proc.communicate(timeout=300)
     finally:
         for pid in stopped:  # a stopped process ignores SIGTERM until it is continued
@@ -262,9 +304,7 @@ def test_stopped_node_is_detected_killed_and_restarted(no_leaks, tmp_path, ros_d
                 os.kill(pid, signal.SIGCONT)
             except ProcessLookupError:
                 pass
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        end_run(proc)
     assert proc.returncode == 0, output
     status = json.loads((out / "run_status.json").read_text())
     print(f"STOP to restart (s): {detection}; run_status: {status}")
@@ -315,9 +355,7 @@ def test_sigterm_mid_run_stops_every_node(no_leaks, tmp_path, ros_domain):
         proc.send_signal(signal.SIGTERM)
         output, _ = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        end_run(proc)
     assert proc.returncode == 130 and "stopped by SIGTERM" in output, output
     assert all(p is not None and not Path(f"/proc/{p}").exists() for p in pids)
     status = json.loads((out / "run_status.json").read_text())

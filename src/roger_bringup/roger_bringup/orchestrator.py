@@ -22,7 +22,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from roger_common.dds import apply_dds_defaults
+from roger_common.dds import (
+    PROFILE_ENV,
+    PROFILE_FILE,
+    RESTART_PARTICIPANT_IDS,
+    apply_dds_defaults,
+    profile_with_participant_id,
+    user_unicast_port,
+)
 
 #: Environment variable naming the folder where nodes keep what they need to resume.
 STATE_DIR_ENV = "ROGER_STATE_DIR"
@@ -233,6 +240,8 @@ class Graph:
     shm_before: set[tuple[str, int]] | None = None
     external: tuple[str, ...] = ()
     deaths: list[dict[str, Any]] = field(default_factory=list)
+    #: Participant ids already given to restarted nodes.
+    participant_ids: list[int] = field(default_factory=list)
 
     def start(self) -> None:
         """Start every node process (except the ``external`` ones, started elsewhere)."""
@@ -273,8 +282,34 @@ class Graph:
         self.deaths.append({"node": child.name, "reason": reason or child.exit_reason(),
                             "shm_removed": len(removed)})
         child.restarts += 1
-        child.start(self.env)
+        child.start(self.restart_env())
         return removed
+
+    def restart_env(self) -> dict[str, str]:
+        """The environment of a restarted node: the graph's, with a participant id that no
+        participant of this run has had (docs/reliability.md, "A restarted node's ports").
+
+        Left to Fast DDS, the new process takes the lowest free id, the one of the process
+        it replaces, and with it the same shared-memory port; that port's files are still
+        open in the peers that were sending to the dead node, and a new listener racing with
+        them for the port's lock can fail to open it ("Failed init_port ...:
+        open_and_lock_file failed") and then never receive a sample. A user's own profile
+        (or transports) is left alone.
+        """
+        if self.env.get(PROFILE_ENV) != str(PROFILE_FILE):
+            return self.env
+        domain = int(self.env.get("ROS_DOMAIN_ID", "0"))
+        taken = {name for name, _ in shm_files()}
+        for pid in RESTART_PARTICIPANT_IDS:
+            if pid in self.participant_ids:
+                continue
+            if f"fastrtps_port{user_unicast_port(domain, pid)}" in taken:
+                continue  # another participant of this domain has (or had) that id
+            self.participant_ids.append(pid)
+            state = Path(self.env.get(STATE_DIR_ENV, self.out_dir / "state"))
+            path = profile_with_participant_id(pid, state / "dds" / f"participant_{pid}.xml")
+            return dict(self.env, **{PROFILE_ENV: str(path)})
+        return self.env  # every id of the range used: Fast DDS picks one
 
     def stop(self, timeout: float = 10.0) -> list[str]:
         """SIGINT every child, wait, then SIGKILL what is left; clean what killed ones left.
