@@ -286,15 +286,16 @@ class Graph:
         return removed
 
     def restart_env(self) -> dict[str, str]:
-        """The environment of a restarted node: the graph's, with a participant id that no
-        participant of this run has had (docs/reliability.md, "A restarted node's ports").
+        """The environment of a restarted node: the graph's, with a participant id of
+        ``RESTART_PARTICIPANT_IDS`` that no node restarted in this run has had and whose
+        port file is not in /dev/shm (docs/reliability.md, "A restarted node's ports").
 
         Left to Fast DDS, the new process takes the lowest free id, the one of the process
         it replaces, and with it the same shared-memory port; that port's files are still
         open in the peers that were sending to the dead node, and a new listener racing with
         them for the port's lock can fail to open it ("Failed init_port ...:
-        open_and_lock_file failed") and then never receive a sample. A user's own profile
-        (or transports) is left alone.
+        open_and_lock_file failed"), the message of every stall seen after a restart. A
+        user's own profile (or transports) is left alone.
         """
         if self.env.get(PROFILE_ENV) != str(PROFILE_FILE):
             return self.env
