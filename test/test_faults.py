@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import WORLDS
+from shm_ledger import domain_of, group_of, holders
 
 from roger_attention.fsm import State
 from roger_common.liveness import CRASH_EXIT, HANG_TIMEOUT_S
@@ -223,28 +224,13 @@ def wait_pid(proc: subprocess.Popen, name: str) -> int:
     return pid
 
 
-def shm_ports(pid: int) -> set[str]:
-    """The shared-memory ports (``fastrtps_port<N>``) process ``pid`` listens on: it holds
-    each port's ``_el`` lock file open."""
-    ports = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
-        try:
-            target = os.readlink(fd)
-        except OSError:
-            continue
-        name = target.rsplit("/", 1)[-1]
-        if target.startswith("/dev/shm/fastrtps_port") and name.endswith("_el"):
-            ports.add(name[:-len("_el")])
-    return ports
-
-
 def domain_ports(pid: int, domain: int) -> set[str]:
-    """``shm_ports`` of ``pid`` numbered after ``domain`` (7400 + 250 * domain + ...), once
-    it has opened them."""
+    """The shared-memory ports (``fastrtps_port<N>``) of ``domain`` that process ``pid``
+    listens on (it holds each port's ``_el`` lock file open), once it has opened them."""
     deadline = time.monotonic() + 60
     while True:
-        first = 7400 + 250 * domain
-        ports = {p for p in shm_ports(pid) if first <= int(p[len("fastrtps_port"):]) < first + 250}
+        ports = {group_of(name) for name, pids in holders().items()
+                 if pid in pids and name.endswith("_el") and domain_of(name) == domain}
         if ports or time.monotonic() > deadline:
             return ports
         time.sleep(0.1)
