@@ -13,7 +13,7 @@ from conftest import WORLDS
 
 from roger_bringup.cli import main
 from roger_common.types import ObjectSpec, Roi, WorldSpec
-from roger_experiments import feature_report
+from roger_experiments import feature_report, table1
 
 
 def _roger(*argv: str) -> None:
@@ -150,3 +150,18 @@ def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merg
     assert p["jitter_median"] == pytest.approx(0.01)
     assert p["jitter_p95"] == pytest.approx(0.01)
     assert feature_report.position_stats([], world)["looks"] == 0
+
+
+def test_table1_means_a_feature_over_the_looks_that_measured_it() -> None:
+    # obj01: two looks at the focus with I = 0.6 and D = 0.44, and one cut by the retina's
+    # edge (I, T, S, D unknown and 0): the table must not average the zeros in.
+    world = WorldSpec((ObjectSpec("obj01", "box", (0.6, 0.6), 0.3, 99, 1.5),))
+    looks = [_look("obj01", {0: 0.6, 1: 0.6, 2: 0.6, 9: 0.44}) for _ in range(2)]
+    cut = _look("obj01", {k: 0.0 for k in range(10)}, known_d=False)
+    cut.roi.known[:10] = False
+    log = feature_report.LookLog(world, [*looks, cut], 3)
+    row = table1.table1(log)["rows"][0]
+    assert row["looks"] == 3
+    assert row["I"] == pytest.approx(0.6) and row["I_sd"] == pytest.approx(0.0, abs=1e-12)
+    assert row["D"] == pytest.approx(0.44) and row["D_sd"] == pytest.approx(0.0, abs=1e-12)
+    assert row["W"] == pytest.approx(0.5)  # felt at its position: known in all three

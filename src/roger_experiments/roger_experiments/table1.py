@@ -38,17 +38,21 @@ def table1(log: LookLog) -> dict[str, Any]:
     for obj in log.world.objects:
         looks = [lk for lk in log.looks if lk.focus and lk.obj == obj.name
                  and lk.purity >= PURE_SHARE]
-        feats = np.stack([lk.roi.features for lk in looks]) if looks else np.zeros((0, 11))
+        # A feature counts only from the looks that measured it (a look cut by the
+        # retina's edge has no I or D; W is known after the haptic improvement).
+        lit = np.stack([lk.roi.features[_I] for lk in looks if lk.roi.known[_I].all()]
+                       or [np.full(3, math.nan)])
+        sized = [lk.roi.features[_D] for lk in looks if lk.roi.known[_D]]
         weighed = [lk.roi.features[_W] for lk in looks if lk.roi.known[_W]]
         paper = PAPER_TABLE1.get(obj.name)
         rows.append({
             "object": obj.name, "intensity": obj.intensity, "size_m": obj.size,
             "weight_kg": obj.weight, "looks": len(looks),
-            "I": float(feats[:, _I].mean()) if looks else math.nan,
-            "I_k": [float(v) for v in feats[:, _I].mean(axis=0)] if looks else [],
-            "I_sd": float(feats[:, _I].mean(axis=1).std()) if looks else math.nan,
-            "D": float(feats[:, _D].mean()) if looks else math.nan,
-            "D_sd": float(feats[:, _D].std()) if looks else math.nan,
+            "I": float(lit.mean()),
+            "I_k": [float(v) for v in lit.mean(axis=0)] if np.isfinite(lit).all() else [],
+            "I_sd": float(lit.mean(axis=1).std()),
+            "D": float(np.mean(sized)) if sized else math.nan,
+            "D_sd": float(np.std(sized)) if sized else math.nan,
             "W": float(np.mean(weighed)) if weighed else math.nan,
             "paper": None if paper is None else
             {"intensity": paper[0], "size_cm": paper[1], "weight": paper[2],
