@@ -208,14 +208,15 @@ class Perception:
             feats, known = assemble(m.intensity, m.texture, stereo,
                                     size_feature(size_m, self.d_max(frame.camera)),
                                     weight, stereo_known)  # eqs. 3-5
-            if rim.own_share < cfg.min_rim_share:
-                # Too little of its silhouette is its own edge (cut by the retina's edge,
-                # or behind another object): I, T, S and D would measure something else.
+            if rim.own_share < cfg.min_rim_share or rim.on_border:
+                # Too little of its silhouette is its own edge (behind another object), or
+                # the retina's edge cuts it: I, T, S and D would measure a part of it, seen
+                # from the rim of the view (docs/perception.md, "A ROI cut by the retina's
+                # edge"). The robot measures it when it looks at it.
                 known[:WEIGHT_INDEX] = False
                 feats[:WEIGHT_INDEX] = 0.0
-            elif rim.on_border or any(seen[n - 1].depth < obj.depth for n in rim.neighbours):
-                # Its silhouette is cut by the retina's edge or by a nearer object: its
-                # extent is not the object's.
+            elif any(seen[n - 1].depth < obj.depth for n in rim.neighbours):
+                # Its silhouette is cut by a nearer object: its extent is not the object's.
                 known[SIZE_INDEX] = False
                 feats[SIZE_INDEX] = 0.0
             tb = time.perf_counter()
