@@ -158,7 +158,7 @@ def test_a_roi_cut_by_the_retinas_edge_has_no_visual_features(views, world: str)
             elif share >= 0.7 and _fully_in_view(frame, poses, name):
                 whole.append(bool(roi.known[:6].all() and roi.known[9]))
     assert whole and sum(whole) >= len(whole) / 2, (world, whole)
-    if world == "table1":  # its 30 cm boxes reach past the retina from the side gazes
+    if world == "table1":  # its 30 cm boxes reach past the retina from every gaze
         assert cut_seen >= 1
 
 
