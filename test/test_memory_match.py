@@ -233,6 +233,23 @@ def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> Non
     assert len(memory.exemplars(memory.store(other, ALL_KNOWN, focus_id=8))) == 1
 
 
+def test_two_looks_of_a_focus_that_complete_to_one_are_stored_once() -> None:
+    # The haptic look measured W and nothing else new (its ROI was cut by the retina's
+    # edge, so the focus kept the visual look's features): completed with W, the visual
+    # look equals it. The store's own features came from a later frame.
+    x = _distinct_patterns(1, seed=19)[0]
+    rng = np.random.default_rng(9)
+    visual = _look(x, rng, 0.5)
+    after = _look(x, rng, 0.5)
+    after[WEIGHT_INDEX] = visual[WEIGHT_INDEX]  # one weighing: every later frame carries it
+    memory = AssociativeMemory(seed=7)
+    memory.match(np.where(W_UNKNOWN, visual, 0), W_UNKNOWN, focus_id=3)
+    memory.match(visual, ALL_KNOWN, final_trial=True, focus_id=3)
+    looks = memory.exemplars(memory.store(after, ALL_KNOWN, focus_id=3))
+    assert len(looks) == 2, looks
+    assert len(np.unique(looks, axis=0)) == 2
+
+
 def test_refinement_reaches_one_acceptance_radius_and_does_not_chain() -> None:
     """Objects on a line 0.8 tau apart: B is identified as A and refines A (a stored
     look of A accepts it); C is identified through B's look, but does not refine A (no

@@ -421,8 +421,13 @@ class AssociativeMemory:
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
                        self._config.feature_weight)[0]
+            # Two looks of the focus can complete to one: a look before the haptic
+            # improvement, and the look after it when that frame measured nothing new
+            # but W (its ROI cut by the retina's edge). One copy is kept.
             if d <= self._config.identify_distance and not (
-                    np.array_equal(ck, k) and np.array_equal(np.where(ck, cx, 0), x)):
+                    np.array_equal(ck, k) and np.array_equal(np.where(ck, cx, 0), x)) \
+                    and not any(np.array_equal(ck, ok) and np.array_equal(cx, ox)
+                                for ox, ok in zip(out_x, out_k, strict=True)):
                 out_x.append(cx)
                 out_k.append(ck)
         out_x.append(x)
