@@ -416,7 +416,8 @@ class AssociativeMemory:
         """The looks of a focus that show the object of (x, k), completed with what (x, k)
         knows, without duplicates, (x, k) last."""
         scale = np.asarray(self._config.feature_scale)
-        out_x, out_k = [], []
+        out_x: list[np.ndarray] = []
+        out_k: list[np.ndarray] = []
         for fx, fk in looks:
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
