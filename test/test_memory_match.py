@@ -336,7 +336,7 @@ def test_table1_objects_with_their_weights() -> None:
     robot's category-level intensity spread of 02, so only its weight can make it new:
     lighter than 02's by 0.8 vetoes it is identified as 02, by 1.25 vetoes it is new.
     The paper's 0.47 vs 0.51 lies on the edge of the robot's measured weighing noise
-    (0.04 against a calibrated veto of 0.039-0.040, about 3 sigma of the difference of
+    (0.04 against a calibrated veto of 0.038-0.040, about 3 sigma of the difference of
     two weighings, docs/memory.md): it goes to whichever side of the veto it falls. With
     W unknown vision cannot exclude 02 or 04."""
     def table1(intensity: float, size: float, weight: float) -> np.ndarray:
