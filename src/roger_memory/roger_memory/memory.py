@@ -416,24 +416,22 @@ class AssociativeMemory:
         """The looks of a focus that show the object of (x, k), completed with what (x, k)
         knows, without duplicates, (x, k) last."""
         scale = np.asarray(self._config.feature_scale)
-        out_x: list[np.ndarray] = []
-        out_k: list[np.ndarray] = []
+        kept: list[tuple[np.ndarray, np.ndarray]] = []
         for fx, fk in looks:
+            # Unknown features are 0 in every validated look, so a completed look that
+            # equals (x, k) or an earlier one is equal array for array. Two looks can
+            # complete to one: a look before the haptic improvement, and the look after it
+            # when that frame measured nothing new but W (its ROI cut by the retina's
+            # edge). One copy is kept.
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
                        self._config.feature_weight)[0]
-            # Two looks of the focus can complete to one: a look before the haptic
-            # improvement, and the look after it when that frame measured nothing new
-            # but W (its ROI cut by the retina's edge). One copy is kept.
-            if d <= self._config.identify_distance and not (
-                    np.array_equal(ck, k) and np.array_equal(np.where(ck, cx, 0), x)) \
-                    and not any(np.array_equal(ck, ok) and np.array_equal(cx, ox)
-                                for ox, ok in zip(out_x, out_k, strict=True)):
-                out_x.append(cx)
-                out_k.append(ck)
-        out_x.append(x)
-        out_k.append(k)
-        return np.stack(out_x), np.stack(out_k)
+            if d <= self._config.identify_distance and not any(
+                    np.array_equal(ck, ok) and np.array_equal(cx, ox)
+                    for ox, ok in (*kept, (x, k))):
+                kept.append((cx, ck))
+        kept.append((x, k))
+        return np.stack([lx for lx, _ in kept]), np.stack([lk for _, lk in kept])
 
     def _refine(self, address: int, x: np.ndarray, k: np.ndarray) -> None:
         """Add the current focus's looks of an identified object to its address.
