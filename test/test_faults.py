@@ -66,17 +66,19 @@ def rows_of(path: Path) -> list[list[str]]:
         return list(csv.reader(fh))[1:]
 
 
-def end_run(proc: subprocess.Popen) -> None:
+def end_run(proc: subprocess.Popen, timeout: float = 60.0) -> str:
     """End a run that a failed assertion left going: SIGINT first, so that the orchestrator
-    stops its nodes and removes their /dev/shm files; SIGKILL only if that hangs."""
+    stops its nodes and removes their /dev/shm files; SIGKILL only if that hangs after
+    ``timeout`` s. Returns what the run said meanwhile ("" if it had already ended)."""
     if proc.poll() is not None:
-        return
+        return ""
     proc.send_signal(signal.SIGINT)
     try:
-        proc.communicate(timeout=60)
+        output, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         proc.kill()
-        proc.communicate()
+        output, _ = proc.communicate()
+    return output
 
 
 def wait_rows(proc: subprocess.Popen, path: Path, n: int, timeout: float = 120.0) -> None:
@@ -249,12 +251,7 @@ def stop_and_wait_restart(proc: subprocess.Popen, name: str, pid: int,
         if time.monotonic() >= deadline:
             # Stop the run (it stops its nodes and writes run_status.json) and show what
             # it said: the reason a hang went undetected is in there, not in this test.
-            proc.send_signal(signal.SIGINT)
-            try:
-                output, _ = proc.communicate(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                output, _ = proc.communicate()
+            output = end_run(proc, timeout=30)
             raise AssertionError(f"{name} not restarted {deadline - t0:.0f} s after STOP; "
                                  f"the run said:\n{output[-4000:]}")
         time.sleep(0.1)
