@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -60,6 +61,25 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
     assert {row["known"][-1] for row in looks} == {"0", "1"}
     assert "| I1 |" in (tmp_path / "features.md").read_text()
     assert "**Positions**" in (tmp_path / "features.md").read_text()
+    # The repeated looks at one fixation (3 by default): fresh pixel noise moves I1, not W
+    # (felt once, carried at the place); they are rows of looks.csv but not in the spreads.
+    noise = result["sensor_noise"]
+    assert noise["visits"] >= 3 and len(noise["ceiling"]) == 11
+    assert noise["sd"][0] > 0.0 and noise["sd"][-1] == 0.0
+    assert noise["ceiling"][0] == pytest.approx(focus["between"][0] / noise["sd"][0])
+    rows = [row for row in looks if row["stage"] == feature_report.NOISE_STAGE]
+    assert len(rows) >= 3 * noise["visits"] and all(int(row["place"]) >= 0 for row in rows)
+    assert all(int(row["place"]) == -1 for row in looks if row["stage"] == "scan")
+    assert "**Sensor noise**" in (tmp_path / "features.md").read_text()
+
+
+def test_features_refuses_a_negative_number_of_noise_looks(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["features", "--world", str(WORLDS / "table1.yaml"), "--out", str(tmp_path),
+              "--noise-looks", "-1"])
+    assert done.value.code == 2
+    assert "--noise-looks" in capsys.readouterr().err
+    assert not (tmp_path / "features.json").exists()
 
 
 def test_the_ratio_plot_keeps_an_infinite_ratio_on_the_scale_of_the_others(tmp_path: Path
@@ -122,6 +142,42 @@ def test_copies_of_a_category_at_other_places_are_measured_apart_from_one_object
                                     "focus_looks": s, "ratio_target": 2.0,
                                     "segmentation": feature_report.segmentation_stats(looks)})
     assert "between-copies sd" in text and "| I1 |" in text
+
+
+def test_sensor_noise_pools_one_fixations_looks_of_its_object_and_stays_out_of_the_spreads(
+) -> None:
+    objects = tuple(ObjectSpec(n, "box", (0.5, y), 0.1, grey, 1.0)
+                    for n, y, grey in (("a", -0.2, 60), ("b", 0.0, 90), ("c", 0.2, 120)))
+    world = WorldSpec(objects)
+
+    def noisy(obj: str, i1: float, place: int, *, purity: float = 1.0,
+              known_d: bool = True) -> feature_report.Look:
+        lk = _look(obj, {0: i1, 9: 0.3}, known_d=known_d)
+        return feature_report.Look(feature_report.NOISE_STAGE, 0, True, obj, purity,
+                                   (obj,), lk.roi, place)
+
+    # Place 0 shows a three times (I1 0.50, 0.52, 0.54: sd 0.02), b once (not the place's
+    # object) and a once impurely; place 1 shows c twice alike, one look without D;
+    # place 2 one look only (no spread to give).
+    noise = [noisy("a", 0.50, 0), noisy("a", 0.52, 0), noisy("a", 0.54, 0),
+             noisy("b", 0.90, 0), noisy("a", 0.99, 0, purity=0.5),
+             noisy("c", 0.30, 1), noisy("c", 0.30, 1, known_d=False), noisy("b", 0.7, 2)]
+    between = np.full(11, 0.1)
+    s = feature_report.noise_stats(noise, between)
+    assert s["visits"] == 2
+    assert s["sd"][0] == pytest.approx(np.sqrt(2 * 0.02 ** 2 / (2 + 1)), rel=1e-9)
+    assert s["ceiling"][0] == pytest.approx(0.1 / s["sd"][0], rel=1e-9)
+    assert s["sd"][9] == 0.0 and math.isinf(s["ceiling"][9])
+    # report(): the focus spreads are those of the other looks alone.
+    shifts = [_look(o, {0: v}) for o, v in (("a", 0.5), ("a", 0.52), ("b", 0.9), ("c", 0.3))]
+    with_noise = feature_report.report(feature_report.LookLog(world, shifts + noise, 9))
+    without = feature_report.report(feature_report.LookLog(world, shifts, 4))
+    for key in ("focus_looks", "all_looks", "segmentation", "positions"):  # NaN-aware
+        assert json.dumps(with_noise[key]) == json.dumps(without[key]), key
+    assert with_noise["sensor_noise"]["visits"] == 2 and without["sensor_noise"]["visits"] == 0
+    text = feature_report.markdown(with_noise)
+    assert "**Sensor noise**" in text and "ceiling" in text
+    assert "**Sensor noise**" not in feature_report.markdown(without)
 
 
 def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merged_rois(

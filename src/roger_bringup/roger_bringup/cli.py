@@ -250,8 +250,13 @@ def cmd_features(args: argparse.Namespace) -> int:
     from roger_experiments import feature_report
     from roger_sim.world import load_world
 
+    if args.noise_looks < 0:
+        print(f"roger features: --noise-looks must be >= 0, got {args.noise_looks}",
+              file=sys.stderr)
+        return 2
     result = feature_report.write(
-        feature_report.collect_looks(load_world(args.world), seed=args.seed), args.out)
+        feature_report.collect_looks(load_world(args.world), seed=args.seed,
+                                     noise_looks=args.noise_looks), args.out)
     print(feature_report.markdown(result))
     print(f"written: {args.out / 'features.md'}, features.json, features.png, looks.csv")
     return 0
@@ -334,6 +339,9 @@ def main(argv: list[str] | None = None) -> None:
     p_feat.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     p_feat.add_argument("--out", type=Path, default=Path("runs/features"),
                         help="output folder")
+    p_feat.add_argument("--noise-looks", type=int, default=3,
+                        help="looks at each place at the end, one fixation with fresh pixel "
+                        "noise: the sensor-noise spread and each feature's ceiling (0: none)")
     p_feat.set_defaults(func=cmd_features)
     p_t1 = sub.add_parser("table1", help="the paper's Table 1: the four boxes' perceived I, D, W")
     p_t1.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")

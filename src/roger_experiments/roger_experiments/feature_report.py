@@ -5,7 +5,10 @@ The robot looks at a world the way it does in a run, without the memory or a pol
 1. the initial scan (``AttentionConfig.home_targets``): every ROI of every look;
 2. for every place the scan settled in the spatial map (the controller's own association),
    an attention shift onto it, a visual improvement and a haptic improvement (the weight);
-3. a shift back onto each place after all of them were visited.
+3. a shift back onto each place after all of them were visited;
+4. (``noise_looks`` > 0) that many more shifts onto each place, one after another: the same
+   fixation with fresh pixel noise, the robot's own sensor noise. These looks are kept
+   apart from the statistics above.
 
 Each ROI of each frame is one *look*. The simulator's label images say (for scoring only)
 which object a ROI shows and how pure it is; the robot never sees them. Per feature the
@@ -16,7 +19,12 @@ other places (view dependence: what a repeat of a category must be recognised th
 over all eleven features, the distance between two looks
 of one object against the distance between the two nearest categories (RMS over the
 features known in both, the memory's distance); the ROI purity and merges; and where the
-ROIs are placed against the footprint centres (positions).
+ROIs are placed against the footprint centres (positions). From the looks of step 4, per
+feature the spread of one fixation's looks (sensor noise alone) and the *ceiling*: the
+spread between categories over it, the ratio the feature would reach if one object's looks
+differed by sensor noise alone and nothing else (view, shading, segmentation). A feature
+whose ceiling is under the target cannot reach it by any change of the view it is taken
+from; only a less noisy measurement (or sensor) can lift it.
 """
 
 from __future__ import annotations
@@ -46,6 +54,8 @@ from roger_sim.simulator import Simulator
 STAGES: tuple[str, ...] = ("scan", "shift", "visual", "haptic", "back")
 #: Stages that look at the focus (what the memory is asked about).
 FOCUS_STAGES: tuple[str, ...] = ("shift", "visual", "haptic", "back")
+#: Stage of the repeated looks at one fixation (step 4): sensor noise, not in the spreads.
+NOISE_STAGE = "noise"
 #: A ROI showing an object on less than this share of its pixels is impure (not a look at
 #: one object); two objects each on at least MERGE_SHARE of a ROI's pixels are merged.
 PURE_SHARE = 0.8
@@ -67,6 +77,7 @@ class Look:
         purity: Share of its pixels on that object.
         merged: Objects covering at least MERGE_SHARE of its pixels each (2+: a merge).
         roi: The ROI as perception gave it.
+        place: Index of the spatial-map place the gaze aimed at (-1 for the scan).
     """
 
     stage: str
@@ -76,6 +87,7 @@ class Look:
     purity: float
     merged: tuple[str, ...]
     roi: Roi
+    place: int = -1
 
 
 @dataclass
@@ -102,8 +114,17 @@ def label_shares(frame: StereoFrame, roi_labels: np.ndarray, roi_id: int
 
 def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None = None,
                   perception_config: PerceptionConfig | None = None,
-                  attention_config: AttentionConfig | None = None) -> LookLog:
-    """Let the robot look at ``world`` (module docstring) and keep every look."""
+                  attention_config: AttentionConfig | None = None,
+                  noise_looks: int = 0) -> LookLog:
+    """Let the robot look at ``world`` (module docstring) and keep every look.
+
+    Args:
+        noise_looks: Shifts onto each place after everything else (step 4): the same
+            fixation with fresh pixel noise; 0 for none. They come last, so the looks of
+            steps 1-3 are the same with and without them.
+    """
+    if noise_looks < 0:
+        raise ValueError(f"noise_looks must be >= 0, got {noise_looks}")
     att = attention_config or AttentionConfig()
     sim = Simulator(world, sim_config or SimConfig(), seed=seed)
     perception = Perception(perception_config or PerceptionConfig())
@@ -111,7 +132,8 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
     log = LookLog(world)
     goal_id = 0
 
-    def look(action: Action, target: tuple[float, float, float], stage: str) -> list[Roi]:
+    def look(action: Action, target: tuple[float, float, float], stage: str,
+             place: int = -1) -> list[Roi]:
         nonlocal goal_id
         goal_id += 1
         _, frame = sim.run_goal(Goal(goal_id, action, target))
@@ -126,7 +148,7 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
             obj, purity = shares[0] if shares else (None, 0.0)
             merged = tuple(o for o, s in shares if s >= MERGE_SHARE)
             log.looks.append(Look(stage, log.frames, roi is near and stage != "scan", obj,
-                                  float(purity), merged, roi))
+                                  float(purity), merged, roi, place))
         log.frames += 1
         return rois
 
@@ -134,12 +156,15 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
         for target in att.scan_targets:
             look(Action.ATTENTION_SHIFT, target, "scan")
         places = [e.position for e in smap]
-        for place in places:
-            look(Action.ATTENTION_SHIFT, place, "shift")
-            look(Action.VISUAL_IMPROVEMENT, place, "visual")
-            look(Action.HAPTIC_IMPROVEMENT, place, "haptic")
-        for place in places:
-            look(Action.ATTENTION_SHIFT, place, "back")
+        for i, place in enumerate(places):
+            look(Action.ATTENTION_SHIFT, place, "shift", i)
+            look(Action.VISUAL_IMPROVEMENT, place, "visual", i)
+            look(Action.HAPTIC_IMPROVEMENT, place, "haptic", i)
+        for i, place in enumerate(places):
+            look(Action.ATTENTION_SHIFT, place, "back", i)
+        for i, place in enumerate(places):
+            for _ in range(noise_looks):
+                look(Action.ATTENTION_SHIFT, place, NOISE_STAGE, i)
     finally:
         sim.close()
     return log
@@ -241,6 +266,46 @@ def _copy_spread(cats: dict[Any, list[str]], obj_mean: dict[str, np.ndarray],
     return spread, arr
 
 
+def noise_stats(looks: Iterable[Look], between: Iterable[float]) -> dict[str, Any]:
+    """Sensor noise: the spread of the looks at the focus of one fixation (step 4).
+
+    The looks of one place that show its object (the object most of the place's focus
+    looks show), purely, are one group; per feature, the pooled standard deviation of the
+    groups around their means (degrees of freedom: looks that measured it minus one per
+    group), and the ceiling ``between / sd``.
+
+    Args:
+        looks: Looks of the NOISE_STAGE (others are ignored).
+        between: The spread between categories per feature (``feature_stats``).
+    """
+    by_place: dict[int, list[Look]] = defaultdict(list)
+    for lk in looks:
+        if lk.stage == NOISE_STAGE and lk.focus and lk.obj is not None \
+                and lk.purity >= PURE_SHARE:
+            by_place[lk.place].append(lk)
+    n = len(FEATURE_NAMES)
+    sq, dof = np.zeros(n), np.zeros(n)
+    visits = 0
+    for lks in by_place.values():
+        objs = [lk.obj for lk in lks]
+        main = max(set(objs), key=objs.count)
+        group = [lk for lk in lks if lk.obj == main]
+        if len(group) < 2:
+            continue
+        visits += 1
+        x = np.stack([lk.roi.features for lk in group]).astype(np.float64)
+        k = np.stack([lk.roi.known for lk in group])
+        cnt = k.sum(axis=0)
+        mean = (x * k).sum(axis=0) / np.maximum(cnt, 1)
+        sq += (np.where(k, x - mean, 0.0) ** 2).sum(axis=0)
+        dof += np.maximum(cnt - 1, 0)
+    sd = np.where(dof > 0, np.sqrt(sq / np.maximum(dof, 1)), np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ceiling = np.asarray(list(between), float) / sd
+    return {"features": list(FEATURE_NAMES), "visits": visits, "sd": sd.tolist(),
+            "ceiling": ceiling.tolist()}
+
+
 def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
     """ROI purity and merges over every look."""
     purities = np.asarray([lk.purity for lk in looks if lk.obj is not None])
@@ -291,13 +356,16 @@ def position_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
 
 def report(log: LookLog) -> dict[str, Any]:
     """Everything ``roger features`` writes to features.json."""
-    focus = [lk for lk in log.looks if lk.stage == "scan" or lk.focus]
+    looks = [lk for lk in log.looks if lk.stage != NOISE_STAGE]
+    focus = [lk for lk in looks if lk.stage == "scan" or lk.focus]
+    focus_stats = feature_stats(focus, log.world)
     return {
         "world": log.world.source, "frames": log.frames,
-        "all_looks": feature_stats(log.looks, log.world),
-        "focus_looks": feature_stats(focus, log.world),
-        "segmentation": segmentation_stats(log.looks),
-        "positions": position_stats(log.looks, log.world),
+        "all_looks": feature_stats(looks, log.world),
+        "focus_looks": focus_stats,
+        "sensor_noise": noise_stats(log.looks, focus_stats["between"]),
+        "segmentation": segmentation_stats(looks),
+        "positions": position_stats(looks, log.world),
         "ratio_target": RATIO_TARGET,
     }
 
@@ -323,6 +391,18 @@ def markdown(result: dict[str, Any]) -> str:
                   f"{s['copy_distance_median']:.4f}; "
                   f"the two nearest categories: {s['nearest_categories_distance']:.4f} apart.",
                   ""]
+    noise = result.get("sensor_noise")
+    if noise and noise["visits"]:
+        target = result["ratio_target"]
+        lines += [f"**Sensor noise** (repeated looks at one fixation, {noise['visits']} "
+                  "places): the spread of one fixation's looks, and the ceiling, the "
+                  "between-category spread over it: what the ratio would be if one "
+                  "object's looks differed by sensor noise alone.", "",
+                  "| feature | same-fixation sd | ceiling |", "|---|---|---|"]
+        for f, sd, c in zip(noise["features"], noise["sd"], noise["ceiling"], strict=True):
+            flag = "" if not math.isfinite(c) or c >= target else f" (< {target:g})"
+            lines.append(f"| {f} | {sd:.4f} | {c:.2f}{flag} |")
+        lines.append("")
     g = result["segmentation"]
     lines += [f"**ROIs**: {g['rois']} ({g['rois_on_ground']} on no object); purity median "
               f"{g['purity_median']:.3f}, 5th percentile {g['purity_p05']:.3f}; "
@@ -367,6 +447,12 @@ def plot(result: dict[str, Any], path: Path) -> None:
     for k in np.flatnonzero(~np.isfinite(ratio)):
         bx.text(x[k], top, "inf", ha="center", va="bottom")
     bx.set_ylim(0.0, 1.1 * top)
+    noise = result.get("sensor_noise")
+    if noise and noise["visits"]:
+        ceiling = np.asarray(noise["ceiling"], float)
+        ok = np.isfinite(ceiling)
+        bx.plot(x[ok], np.minimum(ceiling[ok], top), "kv", ms=6,
+                label="ceiling (sensor noise alone)")
     bx.axhline(result["ratio_target"], color="k", ls="--", lw=1, label="target")
     bx.set_xticks(x, s["features"])
     bx.set_ylabel("between / within")
@@ -383,17 +469,19 @@ def write_looks_csv(log: LookLog, path: Path) -> None:
 
     An unknown feature is written as its value (0), so ``known`` (one 0/1 per feature, in
     FEATURE_NAMES order) says which were measured: D of a cut or occluded silhouette,
-    I/T/S of a ROI with too little rim of its own, W before a haptic improvement."""
+    I/T/S of a ROI with too little rim of its own, W before a haptic improvement. ``place``
+    is the spatial-map place the gaze aimed at (-1 for the scan); the ``noise`` stage's
+    rows are the repeated looks at one fixation (not in the spreads of features.md)."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["stage", "gaze", "focus", "object", "purity", "merged", "x", "y", "z",
-                    *FEATURE_NAMES, "W_known", "known"])
+                    *FEATURE_NAMES, "W_known", "known", "place"])
         for lk in log.looks:
             r = lk.roi
             w.writerow([lk.stage, lk.gaze, int(lk.focus), lk.obj or "", f"{lk.purity:.3f}",
                         "+".join(lk.merged), *(f"{v:.4f}" for v in r.position),
                         *(f"{v:.5f}" for v in r.features), int(r.known[-1]),
-                        "".join("1" if k else "0" for k in r.known)])
+                        "".join("1" if k else "0" for k in r.known), lk.place])
 
 
 def write(log: LookLog, out: Path) -> dict[str, Any]:
