@@ -71,6 +71,10 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
     assert len(rows) >= 3 * noise["visits"] and all(int(row["place"]) >= 0 for row in rows)
     assert all(int(row["place"]) == -1 for row in looks if row["stage"] == "scan")
     assert "**Sensor noise**" in (tmp_path / "features.md").read_text()
+    # The four boxes, each felt: every pair is one of two categories.
+    sep = result["memory_separability"]
+    assert sep["objects"] == 4 and sep["with_copies"] == 0 and not sep["apart_from_copies"]
+    assert "**The memory's distance**" in (tmp_path / "features.md").read_text()
 
 
 def test_features_refuses_a_negative_number_of_noise_looks(tmp_path: Path, capsys) -> None:
@@ -178,6 +182,35 @@ def test_sensor_noise_pools_one_fixations_looks_of_its_object_and_stays_out_of_t
     text = feature_report.markdown(with_noise)
     assert "**Sensor noise**" in text and "ceiling" in text
     assert "**Sensor noise**" not in feature_report.markdown(without)
+
+
+def test_memory_separability_names_objects_near_another_category_or_far_from_their_copies(
+) -> None:
+    objects = tuple(ObjectSpec(n, "box", (0.5, y), 0.1, grey, 1.0)
+                    for n, y, grey in (("a0", -0.2, 60), ("a1", 0.2, 60), ("b0", 0.4, 90)))
+    world = WorldSpec(objects)
+    # a0 and b0 (two categories) differ by 0.01 in I1, a quarter of a category scale; a1,
+    # a copy of a0's category, by 0.3 (I1 ~ 9 scales: beyond tau over all 11 features).
+    looks = [_look("a0", {0: 0.5}), _look("a0", {0: 0.5}), _look("b0", {0: 0.51}),
+             _look("a1", {0: 0.8})]
+    unfelt = _look("b0", {0: 0.9})  # W unknown: not what a final trial sees
+    unfelt.roi.known[10] = False
+    s = feature_report.memory_separability(looks + [unfelt], world)
+    assert s["objects"] == 3 and s["with_copies"] == 2
+    assert sorted(r[:2] for r in s["taken_for_another"]) == [["a0", "b0"], ["b0", "a0"]]
+    assert sorted(r[0] for r in s["apart_from_copies"]) == ["a0", "a1"]
+    assert max(r[2] for r in s["taken_for_another"]) < s["tau"]
+    assert min(r[1] for r in s["apart_from_copies"]) > s["tau"]
+    c = s["closest"]
+    assert c["distance"] == min(r[2] for r in s["taken_for_another"])
+    assert c["repeats_beyond"] == 0.0 and c["copies_beyond"] == 1.0  # a0's looks are equal
+    text = feature_report.markdown({"world": "w", "frames": 1, "ratio_target": 2.0,
+                                    "all_looks": feature_report.feature_stats(looks, world),
+                                    "focus_looks": feature_report.feature_stats(looks, world),
+                                    "memory_separability": s,
+                                    "segmentation": feature_report.segmentation_stats(looks)})
+    assert "2 objects lie within tau of another category (" in text
+    assert "2 of 2 lie beyond it from their own category's other copies (" in text
 
 
 def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merged_rois(

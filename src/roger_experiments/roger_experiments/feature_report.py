@@ -45,6 +45,8 @@ from roger_attention.config import AttentionConfig
 from roger_attention.spatial_map import SpatialMap
 from roger_common.atomic import atomic_write_bytes
 from roger_common.types import FEATURE_NAMES, Action, Goal, Roi, StereoFrame, WorldSpec
+from roger_memory.calibration import rms_z
+from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
 from roger_sim.config import SimConfig
@@ -306,6 +308,80 @@ def noise_stats(looks: Iterable[Look], between: Iterable[float]) -> dict[str, An
             "ceiling": ceiling.tolist()}
 
 
+def memory_separability(looks: Iterable[Look], world: WorldSpec,
+                        config: MemoryConfig | None = None) -> dict[str, Any]:
+    """Can the memory's own distance tell this world's categories apart at all?
+
+    The looks a final trial sees: pure looks at the focus with W known (after the haptic
+    improvement). The memory compares a look with the looks an address holds, and an
+    address refined by a category's copies holds theirs (docs/memory.md), so per object:
+    the memory's distance (weighted RMS z over the common features, calibrated scales and
+    weights: ``roger_memory.calibration.rms_z``) of each of its looks to the nearest look
+    of any object of another category, and to the nearest look of another copy of its own
+    category; the median over its looks, against the acceptance distance tau. An object
+    nearer than tau to another category is taken for it more often than not, by any rule
+    that accepts a repeat at tau; one farther than tau from its own copies is stored again
+    more often than not. Where both happen in one world, no one threshold on these
+    features serves both precisions. ``closest`` is the smallest distance to another
+    category, with the share of the pairs of one object's looks and of the objects' own-
+    copy distances beyond it: what a threshold that parted them would call novel.
+    """
+    cfg = config or MemoryConfig()
+    scale, weight = np.asarray(cfg.feature_scale), np.asarray(cfg.feature_weight)
+    category = {o.name: o.category() for o in world.objects}
+    w_index = FEATURE_NAMES.index("W")
+    by_obj: dict[str, list[Look]] = defaultdict(list)
+    for lk in looks:
+        if (lk.focus and lk.stage != NOISE_STAGE and lk.obj is not None
+                and lk.purity >= PURE_SHARE and lk.roi.known[w_index]):
+            by_obj[lk.obj].append(lk)
+
+    def dist(a: list[Look], b: list[Look]) -> np.ndarray:
+        """(len(a), len(b)) distances of every look of a to every look of b."""
+        xa = np.stack([lk.roi.features for lk in a]).astype(np.float64)
+        ka = np.stack([lk.roi.known for lk in a])
+        xb = np.stack([lk.roi.features for lk in b]).astype(np.float64)
+        kb = np.stack([lk.roi.known for lk in b])
+        delta = (xa[:, None, :] - xb[None, :, :]).reshape(-1, xa.shape[1])
+        common = (ka[:, None, :] & kb[None, :, :]).reshape(-1, ka.shape[1])
+        return rms_z(delta, common, scale, weight).reshape(len(a), len(b))
+
+    tau = cfg.identify_distance
+    confused, split, own_d, other_d = [], [], [], []
+    repeats = []
+    for name, lks in sorted(by_obj.items()):
+        if len(lks) > 1:
+            repeats.append(dist(lks, lks)[np.triu_indices(len(lks), 1)])
+        others = [o for o in by_obj if category.get(o) != category.get(name)]
+        copies = [o for o in by_obj if o != name and category.get(o) == category.get(name)]
+        if others:
+            near = np.stack([dist(lks, by_obj[o]).min(axis=1) for o in others])
+            best = near.min(axis=0)
+            d = float(np.median(best))
+            # The other category whose looks are nearest most often.
+            which = others[int(np.bincount(near.argmin(axis=0)).argmax())]
+            other_d.append(d)
+            if d < tau:
+                confused.append([name, which, d])
+        if copies:
+            d = float(np.median(np.min([dist(lks, by_obj[o]).min(axis=1) for o in copies],
+                                       axis=0)))
+            own_d.append(d)
+            if d > tau:
+                split.append([name, d])
+    rep = np.concatenate(repeats) if repeats else np.empty(0)
+    own = np.asarray(own_d)
+    closest: dict[str, Any] = {}
+    if other_d:
+        d_min = min(other_d)
+        closest = {"distance": d_min,
+                   "repeats_beyond": float((rep > d_min).mean()) if rep.size else math.nan,
+                   "copies_beyond": float((own > d_min).mean()) if own.size else math.nan}
+    return {"tau": tau, "objects": len(by_obj), "with_copies": int(own.size),
+            "taken_for_another": sorted(confused, key=lambda r: r[2]),
+            "apart_from_copies": sorted(split, key=lambda r: -r[1]), "closest": closest}
+
+
 def segmentation_stats(looks: list[Look]) -> dict[str, Any]:
     """ROI purity and merges over every look."""
     purities = np.asarray([lk.purity for lk in looks if lk.obj is not None])
@@ -364,6 +440,7 @@ def report(log: LookLog) -> dict[str, Any]:
         "all_looks": feature_stats(looks, log.world),
         "focus_looks": focus_stats,
         "sensor_noise": noise_stats(log.looks, focus_stats["between"]),
+        "memory_separability": memory_separability(looks, log.world),
         "segmentation": segmentation_stats(looks),
         "positions": position_stats(looks, log.world),
         "ratio_target": RATIO_TARGET,
@@ -402,6 +479,31 @@ def markdown(result: dict[str, Any]) -> str:
         for f, sd, c in zip(noise["features"], noise["sd"], noise["ceiling"], strict=True):
             flag = "" if not math.isfinite(c) or c >= target else f" (< {target:g})"
             lines.append(f"| {f} | {sd:.4f} | {c:.2f}{flag} |")
+        lines.append("")
+    sep = result.get("memory_separability")
+    if sep and sep["objects"]:
+        took = ", ".join(f"{a} as {b} {d:.1f}" for a, b, d in sep["taken_for_another"][:6])
+        apart = ", ".join(f"{a} {d:.1f}" for a, d in sep["apart_from_copies"][:6])
+        more = ", ..."
+        lines += [f"**The memory's distance** (looks at the focus with W known, "
+                  f"{sep['objects']} objects; the median of each look's distance to the "
+                  f"nearest look of another object, in the memory's calibrated units, "
+                  f"acceptance tau = {sep['tau']:.2f}): "
+                  f"{len(sep['taken_for_another'])} objects lie within tau of another "
+                  f"category"
+                  + (f" ({took}{more if len(sep['taken_for_another']) > 6 else ''})"
+                     if took else "")
+                  + f"; {len(sep['apart_from_copies'])} of {sep['with_copies']} lie beyond "
+                  f"it from their own category's other copies"
+                  + (f" ({apart}{more if len(sep['apart_from_copies']) > 6 else ''})"
+                     if apart else "") + "."]
+        c = sep["closest"]
+        if c and c["distance"] < sep["tau"]:
+            lines += ["", f"The nearest other category lies {c['distance']:.2f} away: a "
+                      f"threshold that parts it would call novel "
+                      f"{100 * c['repeats_beyond']:.0f} % of the pairs of one object's "
+                      f"looks and {100 * c['copies_beyond']:.0f} % of the objects seen "
+                      f"again as copies."]
         lines.append("")
     g = result["segmentation"]
     lines += [f"**ROIs**: {g['rois']} ({g['rois_on_ground']} on no object); purity median "
