@@ -358,7 +358,7 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
             near = np.stack([dist(lks, by_obj[o]).min(axis=1) for o in others])
             best = near.min(axis=0)
             d = float(np.median(best))
-            # The other category whose looks are nearest most often.
+            # The object of another category whose looks are nearest most often.
             which = others[int(np.bincount(near.argmin(axis=0)).argmax())]
             other_d.append(d)
             if d < tau:
