@@ -250,10 +250,6 @@ def cmd_features(args: argparse.Namespace) -> int:
     from roger_experiments import feature_report
     from roger_sim.world import load_world
 
-    if args.noise_looks < 0:
-        print(f"roger features: --noise-looks must be >= 0, got {args.noise_looks}",
-              file=sys.stderr)
-        return 2
     result = feature_report.write(
         feature_report.collect_looks(load_world(args.world), seed=args.seed,
                                      noise_looks=args.noise_looks), args.out)

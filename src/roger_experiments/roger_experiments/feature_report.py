@@ -44,6 +44,7 @@ import numpy as np
 from roger_attention.config import AttentionConfig
 from roger_attention.spatial_map import SpatialMap
 from roger_common.atomic import atomic_write_bytes
+from roger_common.errors import ConfigError
 from roger_common.types import FEATURE_NAMES, Action, Goal, Roi, StereoFrame, WorldSpec
 from roger_memory.calibration import rms_z
 from roger_memory.config import MemoryConfig
@@ -126,7 +127,8 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
             steps 1-3 are the same with and without them.
     """
     if noise_looks < 0:
-        raise ValueError(f"noise_looks must be >= 0, got {noise_looks}")
+        raise ConfigError(f"noise_looks (roger features --noise-looks) must be >= 0, got "
+                          f"{noise_looks}")
     att = attention_config or AttentionConfig()
     sim = Simulator(world, sim_config or SimConfig(), seed=seed)
     perception = Perception(perception_config or PerceptionConfig())
@@ -177,6 +179,22 @@ def _rms(a: np.ndarray, b: np.ndarray, ka: np.ndarray, kb: np.ndarray) -> float:
     return float(np.sqrt(np.mean((a[k] - b[k]) ** 2))) if k.any() else math.nan
 
 
+def _stacked(looks: list[Look]) -> tuple[np.ndarray, np.ndarray]:
+    """The features (float64) and known masks of ``looks``, one row each."""
+    return (np.stack([lk.roi.features for lk in looks]).astype(np.float64),
+            np.stack([lk.roi.known for lk in looks]))
+
+
+def _deviations(x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per feature, of the looks (x, k) of one group: the mean over the looks that
+    measured it (NaN where none did), the sum of their squared deviations from it, and
+    their degrees of freedom (looks that measured it minus one)."""
+    cnt = k.sum(axis=0)
+    mean = np.where(cnt > 0, (x * k).sum(axis=0) / np.maximum(cnt, 1), np.nan)
+    sq = (np.where(k, x - mean, 0.0) ** 2).sum(axis=0)
+    return mean, sq, np.maximum(cnt - 1, 0)
+
+
 def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     """Within-object and between-category spread of every feature, look distances.
 
@@ -192,14 +210,11 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     obj_mean: dict[str, np.ndarray] = {}
     obj_known: dict[str, np.ndarray] = {}
     for name, lks in by_obj.items():
-        x = np.stack([lk.roi.features for lk in lks]).astype(np.float64)
-        k = np.stack([lk.roi.known for lk in lks])
-        cnt = k.sum(axis=0)
-        mean = np.where(cnt > 0, (x * k).sum(axis=0) / np.maximum(cnt, 1), np.nan)
-        obj_mean[name], obj_known[name] = mean, cnt > 0
-        dev = np.where(k, x - mean, 0.0)
-        within_sq += (dev ** 2).sum(axis=0)
-        within_n += np.maximum(cnt - 1, 0)  # degrees of freedom per object
+        x, k = _stacked(lks)
+        mean, sq, dof = _deviations(x, k)
+        obj_mean[name], obj_known[name] = mean, k.sum(axis=0) > 0
+        within_sq += sq
+        within_n += dof
     within = np.sqrt(within_sq / np.maximum(within_n, 1))
     cats: dict[Any, list[str]] = defaultdict(list)
     for name in obj_mean:
@@ -295,12 +310,9 @@ def noise_stats(looks: Iterable[Look], between: Iterable[float]) -> dict[str, An
         if len(group) < 2:
             continue
         visits += 1
-        x = np.stack([lk.roi.features for lk in group]).astype(np.float64)
-        k = np.stack([lk.roi.known for lk in group])
-        cnt = k.sum(axis=0)
-        mean = (x * k).sum(axis=0) / np.maximum(cnt, 1)
-        sq += (np.where(k, x - mean, 0.0) ** 2).sum(axis=0)
-        dof += np.maximum(cnt - 1, 0)
+        _, group_sq, group_dof = _deviations(*_stacked(group))
+        sq += group_sq
+        dof += group_dof
     sd = np.where(dof > 0, np.sqrt(sq / np.maximum(dof, 1)), np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         ceiling = np.asarray(list(between), float) / sd
@@ -336,26 +348,25 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
                 and lk.purity >= PURE_SHARE and lk.roi.known[w_index]):
             by_obj[lk.obj].append(lk)
 
-    def dist(a: list[Look], b: list[Look]) -> np.ndarray:
-        """(len(a), len(b)) distances of every look of a to every look of b."""
-        xa = np.stack([lk.roi.features for lk in a]).astype(np.float64)
-        ka = np.stack([lk.roi.known for lk in a])
-        xb = np.stack([lk.roi.features for lk in b]).astype(np.float64)
-        kb = np.stack([lk.roi.known for lk in b])
+    arrays = {name: _stacked(lks) for name, lks in by_obj.items()}
+
+    def dist(a: str, b: str) -> np.ndarray:
+        """(looks of a, looks of b) distances of every look of a to every look of b."""
+        (xa, ka), (xb, kb) = arrays[a], arrays[b]
         delta = (xa[:, None, :] - xb[None, :, :]).reshape(-1, xa.shape[1])
         common = (ka[:, None, :] & kb[None, :, :]).reshape(-1, ka.shape[1])
-        return rms_z(delta, common, scale, weight).reshape(len(a), len(b))
+        return rms_z(delta, common, scale, weight).reshape(len(xa), len(xb))
 
     tau = cfg.identify_distance
     confused, split, own_d, other_d = [], [], [], []
     repeats = []
     for name, lks in sorted(by_obj.items()):
         if len(lks) > 1:
-            repeats.append(dist(lks, lks)[np.triu_indices(len(lks), 1)])
+            repeats.append(dist(name, name)[np.triu_indices(len(lks), 1)])
         others = [o for o in by_obj if category.get(o) != category.get(name)]
         copies = [o for o in by_obj if o != name and category.get(o) == category.get(name)]
         if others:
-            near = np.stack([dist(lks, by_obj[o]).min(axis=1) for o in others])
+            near = np.stack([dist(name, o).min(axis=1) for o in others])
             best = near.min(axis=0)
             d = float(np.median(best))
             # The object of another category whose looks are nearest most often.
@@ -364,8 +375,7 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
             if d < tau:
                 confused.append([name, which, d])
         if copies:
-            d = float(np.median(np.min([dist(lks, by_obj[o]).min(axis=1) for o in copies],
-                                       axis=0)))
+            d = float(np.median(np.min([dist(name, o).min(axis=1) for o in copies], axis=0)))
             own_d.append(d)
             if d > tau:
                 split.append([name, d])
