@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import warnings
@@ -211,6 +212,25 @@ def test_memory_separability_names_objects_near_another_category_or_far_from_the
                                     "segmentation": feature_report.segmentation_stats(looks)})
     assert "2 objects lie within tau of another category (" in text
     assert "2 of 2 lie beyond it from their own category's other copies (" in text
+
+
+def test_memory_separability_keeps_a_look_with_ground_around_one_object_not_a_merge(
+) -> None:
+    # A round silhouette leaves a quarter of its ROI on the ground (purity 0.75 on random
+    # 233's spheres): the memory is asked about such looks, so they count; a ROI that
+    # shows two objects (each on >= MERGE_SHARE of it) does not.
+    objects = tuple(ObjectSpec(n, "sphere", (0.5, y), 0.1, 60, 1.0)
+                    for n, y in (("a0", -0.2), ("a1", 0.2), ("a2", 0.4)))
+    world = WorldSpec(objects)
+
+    def seen(obj: str, purity: float, merged: tuple[str, ...]) -> feature_report.Look:
+        lk = _look(obj, {0: 0.5})
+        return dataclasses.replace(lk, purity=purity, merged=merged)
+
+    looks = [seen("a0", 0.75, ("a0",)), seen("a1", 0.72, ("a1",)),
+             seen("a2", 0.6, ("a2", "a0"))]
+    s = feature_report.memory_separability(looks, world)
+    assert s["objects"] == 2 and s["with_copies"] == 2
 
 
 def test_positions_are_scored_against_the_footprint_and_skip_cut_impure_and_merged_rois(

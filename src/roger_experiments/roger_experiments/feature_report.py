@@ -324,13 +324,14 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
                         config: MemoryConfig | None = None) -> dict[str, Any]:
     """Can the memory's own distance tell this world's categories apart at all?
 
-    The looks a final trial sees: pure looks at the focus with W known (after the haptic
-    improvement). The memory compares a look with the looks an address holds, and an
-    address refined by a category's copies holds theirs (docs/memory.md), so per object:
-    the memory's distance (weighted RMS z over the common features, calibrated scales and
-    weights: ``roger_memory.calibration.rms_z``) of each of its looks to the nearest look
-    of any object of another category, and to the nearest look of another copy of its own
-    category; the median over its looks, against the acceptance distance tau. An object
+    The looks a final trial sees: looks at the focus that show one object, with W known
+    (after the haptic improvement). The memory compares a look with the looks an address
+    holds, and an address refined by a category's copies holds theirs (docs/memory.md), so
+    per object: the memory's distance (weighted RMS z over the common features, calibrated
+    scales and weights: ``roger_memory.calibration.rms_z``) of each of its looks to the
+    nearest look of any object of another category, and to the nearest look of another
+    copy of its own category; the median over its looks, against the acceptance distance
+    tau. An object
     nearer than tau to another category is taken for it more often than not, by any rule
     that accepts a repeat at tau; one farther than tau from its own copies is stored again
     more often than not. Where both happen in one world, no one threshold on these
@@ -344,8 +345,12 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
     w_index = FEATURE_NAMES.index("W")
     by_obj: dict[str, list[Look]] = defaultdict(list)
     for lk in looks:
+        # Every look at one object (no second one on MERGE_SHARE of its pixels), however
+        # much ground it shows: the memory is asked about those too. PURE_SHARE, which
+        # counts ground pixels as impure, would leave out a sphere's or a cylinder's
+        # looks (a disc around a round silhouette: purity 0.72-0.80 on random 233).
         if (lk.focus and lk.stage != NOISE_STAGE and lk.obj is not None
-                and lk.purity >= PURE_SHARE and lk.roi.known[w_index]):
+                and len(lk.merged) <= 1 and lk.roi.known[w_index]):
             by_obj[lk.obj].append(lk)
 
     arrays = {name: _stacked(lks) for name, lks in by_obj.items()}
@@ -496,6 +501,7 @@ def markdown(result: dict[str, Any]) -> str:
         apart = ", ".join(f"{a} {d:.1f}" for a, d in sep["apart_from_copies"][:6])
         more = ", ..."
         lines += [f"**The memory's distance** (looks at the focus with W known, "
+                  f"showing one object, ground around it included; "
                   f"{sep['objects']} objects; the median of each look's distance to the "
                   f"nearest look of another object, in the memory's calibrated units, "
                   f"acceptance tau = {sep['tau']:.2f}): "
