@@ -317,3 +317,36 @@ def test_same_seed_same_run() -> None:
 
     assert run(8) == run(8)
     assert run(8) != run(9)
+
+
+def test_the_eyes_stand_still_within_one_pixel_and_unknown_views_count_as_moved() -> None:
+    from roger_attention.controller import eyes_still
+    from roger_common.types import CameraModel, EyePose
+
+    camera = CameraModel(128, 128, focal_px=100.0)      # one pixel: 0.01 rad
+
+    def turned(rad: float, dx: float = 0.0) -> EyePose:
+        c, s = np.cos(rad), np.sin(rad)
+        return EyePose(np.array([dx, 0.0, 0.7]), np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]))
+
+    here = turned(0.0)
+    assert eyes_still(here, turned(0.004), camera)             # an improvement's re-verging
+    assert not eyes_still(here, turned(0.02), camera)          # two pixels: a shift
+    assert not eyes_still(here, turned(0.0, dx=0.01), camera)  # the neck moved the eye
+    # The controller compares each frame with the one before; the first, or one without
+    # a pose, is taken as a new view (the map then takes every ROI as it is).
+    ctl = AttentionController(AttentionConfig(), make_policy("straightforward",
+                                                             AttentionConfig(),
+                                                             np.random.default_rng(0)),
+                              np.random.default_rng(0))
+    seen: list[bool] = []
+    real_update = ctl.spatial_map.update
+
+    def update(rois, now, visible=None, still=False):  # type: ignore[no-untyped-def]
+        seen.append(still)
+        return real_update(rois, now, visible, still)
+
+    ctl.spatial_map.update = update  # type: ignore[method-assign]
+    for pose in (here, turned(0.004), None, here, turned(0.3)):
+        ctl.observe([], 0.0, None, camera if pose is not None else None, pose)
+    assert seen == [False, True, False, False, False]

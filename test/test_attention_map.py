@@ -263,6 +263,50 @@ def test_a_stray_position_does_not_move_an_entry_but_a_repeated_one_does() -> No
     assert m.get(eid).position == pytest.approx((0.63, 0.0, 0.05))
 
 
+def test_while_the_eyes_stand_still_a_grown_window_is_a_merge_that_only_adds_the_weight(
+) -> None:
+    # Random 231's first focus: a box seen on its own after the shift, merged with the
+    # two objects behind it after the haptic improvement (nothing had moved; fresh pixel
+    # noise flipped perception's split). The merge brings the weight; its position,
+    # other features and window are the blend's, not the box's.
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0)], now=float(t))
+    (eid,) = [e.entry_id for e in m]
+    m.focus(eid, now=2.0)
+    box = m.get(eid).roi                                           # 4 x 4 px
+    blend = dataclasses.replace(roi(0.53, 0.0, value=0.7, weight=0.8),
+                                position=(0.53, 0.0, 0.05), bbox=(0, 0, 4, 9))
+    ch = m.update([blend], now=3.0, still=True)
+    e = m.get(eid)
+    assert ch.associated == (eid,)
+    assert e.known.all() and e.features[WEIGHT_INDEX] == pytest.approx(0.8)
+    assert e.features[0] == pytest.approx(0.3)                     # the box's, not 0.7
+    assert e.roi.bbox == box.bbox and e.last_frame == m.frame      # seen, not lost
+    assert e.position == pytest.approx((0.5, 0.0, 0.05))
+    # A window that shrinks (the object parted from a neighbour) is taken.
+    parted = dataclasses.replace(roi(0.5, 0.0, value=0.35), position=(0.5, 0.0, 0.05),
+                                 bbox=(0, 0, 3, 3))
+    m.update([parted], now=4.0, still=True)
+    e = m.get(eid)
+    assert e.features[0] == pytest.approx(0.35) and e.roi.bbox == (0, 0, 3, 3)
+    assert e.features[WEIGHT_INDEX] == pytest.approx(0.8)          # kept for the focus
+
+
+def test_after_the_eyes_moved_a_grown_window_is_the_entrys_only_view() -> None:
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0)], now=float(t))
+    (eid,) = [e.entry_id for e in m]
+    m.focus(eid, now=2.0)
+    # The old window is elsewhere in the new image: the ROI is taken as it is.
+    seen = dataclasses.replace(roi(0.5, 0.0, value=0.2), position=(0.5, 0.0, 0.05),
+                               bbox=(20, 20, 30, 30))
+    m.update([seen], now=3.0)
+    e = m.get(eid)
+    assert e.features[0] == pytest.approx(0.2) and e.roi.bbox == (20, 20, 30, 30)
+
+
 def test_a_place_where_fixation_found_nothing_waits_for_its_interest() -> None:
     m = SpatialMap(SETTLE)
     for t in range(2):

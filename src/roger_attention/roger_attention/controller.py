@@ -4,13 +4,14 @@ The driver (the ROS attention node, or an in-process loop) first runs the initia
 which settles the pre-attentional map over the whole workspace::
 
     while (look := ctl.next_look()) is not None:   # AttentionConfig.home_targets
-        execute look, render, perceive; ctl.observe(rois, now, ctl.visibility(camera, pose))
+        execute look, render, perceive;
+        ctl.observe(rois, now, ctl.visibility(camera, pose), camera, pose)
 
 then runs each cycle as::
 
     plan = ctl.begin_cycle(now)                # the policy picks the action
     if plan.goal:                              # physical action
-        execute, render, perceive; ctl.observe(rois, now, visible)
+        execute, render, perceive; ctl.observe(rois, now, visible, camera, pose)
         req = ctl.match_request()              # None when the focus is lost from view
         result = memory(req) if req else None
     elif plan.memory_request:                  # map update of a new object: store it
@@ -174,6 +175,18 @@ class _Pending:
     final_trial: bool
 
 
+def eyes_still(before: EyePose, after: EyePose, camera: CameraModel) -> bool:
+    """Whether the eyes moved less than one pixel between two frames: the optical axis
+    turned by less than one pixel's angle (1 / focal_px) and the optical centre moved
+    by less than one pixel's width at half a metre (the near edge of the workspace).
+    A visual or haptic improvement leaves the eyes there; an attention shift or a look
+    moves them."""
+    turn = before.rotation.T @ after.rotation
+    angle = math.acos(max(-1.0, min(1.0, (float(np.trace(turn)) - 1.0) / 2.0)))
+    shift = float(np.linalg.norm(np.subtract(after.position, before.position)))
+    return angle < 1.0 / camera.focal_px and shift < 0.5 / camera.focal_px
+
+
 class AttentionController:
     """Spatial map, attention window, attention shift, FSM, policy and counters.
 
@@ -202,6 +215,7 @@ class AttentionController:
         self._haptic_left = 0
         self._focus_address = -1
         self._focus_id = 0  # goal id of the focus's shift: memory groups its looks by it
+        self._last_view: tuple[CameraModel, EyePose] | None = None  # of the last observe
         self._pending: _Pending | None = None
         self._next_goal_id = 1
         self._next_request_id = 1
@@ -358,10 +372,20 @@ class AttentionController:
         return allowed_actions(self._state, self._visual_left, self._haptic_left,
                                has_focus=self.focus is not None)
 
-    def observe(self, rois: Sequence[Roi], now: float,
-                visible: VisibleFn | None = None) -> MapChanges:
-        """Merge one frame's ROIs into the spatial map (see SpatialMap.update)."""
-        changes = self.spatial_map.update(rois, now, visible)
+    def observe(self, rois: Sequence[Roi], now: float, visible: VisibleFn | None = None,
+                camera: CameraModel | None = None, pose: EyePose | None = None
+                ) -> MapChanges:
+        """Merge one frame's ROIs into the spatial map (see SpatialMap.update).
+
+        ``camera`` and ``pose`` (the left retina's, as for :meth:`visibility`) tell whether
+        the eyes stood still since the previous frame (:func:`eyes_still`); unknown counts
+        as moved.
+        """
+        view = (camera, pose) if camera is not None and pose is not None else None
+        still = (view is not None and self._last_view is not None
+                 and eyes_still(self._last_view[1], view[1], view[0]))
+        self._last_view = view
+        changes = self.spatial_map.update(rois, now, visible, still=still)
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
         self._track_mapped()

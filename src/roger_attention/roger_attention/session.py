@@ -178,7 +178,7 @@ class AttentionSession:
         self._awaited_goal, self._last_sent = None, None
         self._frame_stamp = stamp
         self._sim_now = max(self._sim_now, stamp)
-        self.ctl.observe(rois, stamp, self.ctl.visibility(camera, pose))
+        self.ctl.observe(rois, stamp, self.ctl.visibility(camera, pose), camera, pose)
         if not is_look(goal_id):
             request = self.ctl.match_request()
             return self._send_request(request) if request is not None else self._end_cycle(None)

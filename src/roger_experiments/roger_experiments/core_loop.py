@@ -90,7 +90,8 @@ class CoreLoop:
             self.stage_seconds[f"perception.{stage}"] += seconds
         with self._timed("policy"):
             self.ctl.observe(rois, frame.stamp,
-                             self.ctl.visibility(frame.camera, frame.left_pose))
+                             self.ctl.visibility(frame.camera, frame.left_pose),
+                             frame.camera, frame.left_pose)
 
     def _look(self) -> None:
         while (look := self.ctl.next_look()) is not None:
