@@ -10,7 +10,13 @@ import pytest
 from attention_fakes import FakeMemory, FakeWorld, Obj, check_table2, three_objects
 
 from roger_attention.config import AttentionConfig, SpatialMapConfig
-from roger_attention.controller import OUTCOMES, AttentionController, CyclePlan, CycleRecord
+from roger_attention.controller import (
+    OUTCOMES,
+    AttentionController,
+    CyclePlan,
+    CycleRecord,
+    eyes_still,
+)
 from roger_attention.fsm import State
 from roger_attention.fsm_env import FsmEnv, train_qtable
 from roger_attention.policies import QLearningPolicy, make_policy
@@ -18,6 +24,8 @@ from roger_attention.qlearning import QTable
 from roger_common.types import (
     WEIGHT_INDEX,
     Action,
+    CameraModel,
+    EyePose,
     MemoryOp,
 )
 
@@ -320,9 +328,6 @@ def test_same_seed_same_run() -> None:
 
 
 def test_the_eyes_stand_still_within_one_pixel_and_unknown_views_count_as_moved() -> None:
-    from roger_attention.controller import eyes_still
-    from roger_common.types import CameraModel, EyePose
-
     camera = CameraModel(128, 128, focal_px=100.0)      # one pixel: 0.01 rad
 
     def turned(rad: float, dx: float = 0.0) -> EyePose:

@@ -331,10 +331,10 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
     scales and weights: ``roger_memory.calibration.rms_z``) of each of its looks to the
     nearest look of any object of another category, and to the nearest look of another
     copy of its own category; the median over its looks, against the acceptance distance
-    tau. An object
-    nearer than tau to another category is taken for it more often than not, by any rule
-    that accepts a repeat at tau; one farther than tau from its own copies is stored again
-    more often than not. Where both happen in one world, no one threshold on these
+    tau. An object nearer than tau to another category is taken for it more often than
+    not, by any rule that accepts a repeat at tau; one farther than tau from its own
+    copies is stored again more often than not. Where both happen in one world, no one
+    threshold on these
     features serves both precisions. ``closest`` is the smallest distance to another
     category, with the share of the pairs of one object's looks and of the objects' own-
     copy distances beyond it: what a threshold that parted them would call novel.
