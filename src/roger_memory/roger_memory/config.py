@@ -18,9 +18,10 @@ from roger_common.types import FEATURE_NAMES
 ARCHITECTURE_FIELDS: tuple[str, ...] = ()
 
 #: Calibration of the shipped defaults (docs/memory.md, "Calibration"): measured by
-#: roger_memory.calibration.calibrate on test/data/memory_queries.csv, the robot's own
-#: looks at the six shipped worlds, without their labels; test_memory_calibration.py
-#: checks that the file still gives these values.
+#: roger_memory.calibration.calibrate on test/data/memory_queries.csv.gz, the robot's own
+#: looks at the six shipped worlds, without their labels; test_memory_recorded.py
+#: (test_the_shipped_calibration_is_what_the_recorded_looks_give) checks that the file
+#: still gives these values.
 CALIBRATED_FEATURE_SCALE: tuple[float, ...] = (
     0.02451, 0.03266, 0.04142, 0.00482, 0.00397, 0.00432,
     0.02929, 0.02667, 0.03053, 0.00466, 0.01058)
