@@ -215,7 +215,7 @@ class AttentionController:
         self._haptic_left = 0
         self._focus_address = -1
         self._focus_id = 0  # goal id of the focus's shift: memory groups its looks by it
-        self._last_view: tuple[CameraModel, EyePose] | None = None  # of the last observe
+        self._last_pose: EyePose | None = None  # the left eye's, of the last observe
         self._pending: _Pending | None = None
         self._next_goal_id = 1
         self._next_request_id = 1
@@ -381,10 +381,9 @@ class AttentionController:
         the eyes stood still since the previous frame (:func:`eyes_still`); unknown counts
         as moved.
         """
-        view = (camera, pose) if camera is not None and pose is not None else None
-        still = (view is not None and self._last_view is not None
-                 and eyes_still(self._last_view[1], view[1], view[0]))
-        self._last_view = view
+        still = (camera is not None and pose is not None and self._last_pose is not None
+                 and eyes_still(self._last_pose, pose, camera))
+        self._last_pose = pose if camera is not None else None
         changes = self.spatial_map.update(rois, now, visible, still=still)
         if self.focus is not None and self.focus not in self.spatial_map:
             self.focus = None
