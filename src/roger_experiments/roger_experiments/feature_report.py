@@ -45,7 +45,15 @@ from roger_attention.config import AttentionConfig
 from roger_attention.spatial_map import SpatialMap
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
-from roger_common.types import FEATURE_NAMES, Action, Goal, Roi, StereoFrame, WorldSpec
+from roger_common.types import (
+    FEATURE_NAMES,
+    WEIGHT_INDEX,
+    Action,
+    Goal,
+    Roi,
+    StereoFrame,
+    WorldSpec,
+)
 from roger_memory.calibration import rms_z
 from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
@@ -334,15 +342,14 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
     tau. An object nearer than tau to another category is taken for it more often than
     not, by any rule that accepts a repeat at tau; one farther than tau from its own
     copies is stored again more often than not. Where both happen in one world, no one
-    threshold on these
-    features serves both precisions. ``closest`` is the smallest distance to another
-    category, with the share of the pairs of one object's looks and of the objects' own-
-    copy distances beyond it: what a threshold that parted them would call novel.
+    threshold on these features serves both precisions. ``closest`` is the smallest
+    distance to another category, with the share of the pairs of one object's looks and of
+    the objects' own-copy distances beyond it: what a threshold that parted them would
+    call novel.
     """
     cfg = config or MemoryConfig()
     scale, weight = np.asarray(cfg.feature_scale), np.asarray(cfg.feature_weight)
     category = {o.name: o.category() for o in world.objects}
-    w_index = FEATURE_NAMES.index("W")
     by_obj: dict[str, list[Look]] = defaultdict(list)
     for lk in looks:
         # Every look at one object (no second one on MERGE_SHARE of its pixels), however
@@ -350,7 +357,7 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
         # counts ground pixels as impure, would leave out a sphere's or a cylinder's
         # looks (a disc around a round silhouette: purity 0.72-0.80 on random 233).
         if (lk.focus and lk.stage != NOISE_STAGE and lk.obj is not None
-                and len(lk.merged) <= 1 and lk.roi.known[w_index]):
+                and len(lk.merged) <= 1 and lk.roi.known[WEIGHT_INDEX]):
             by_obj[lk.obj].append(lk)
 
     arrays = {name: _stacked(lks) for name, lks in by_obj.items()}

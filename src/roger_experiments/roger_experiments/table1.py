@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from roger_common.atomic import atomic_write_bytes
-from roger_common.types import FEATURE_NAMES, WorldSpec
+from roger_common.types import FEATURE_NAMES, SIZE_INDEX, WEIGHT_INDEX, WorldSpec
 from roger_experiments.feature_report import PURE_SHARE, LookLog, collect_looks
 
 #: Table 1 of the paper: (world intensity, size cm, weight units; perceived I, D, W).
@@ -29,7 +29,7 @@ PAPER_TABLE1: dict[str, tuple[float, float, float, float, float, float]] = {
     "obj04": (59, 30, 5, 0.47, 0.44, 0.24),
 }
 _I = [FEATURE_NAMES.index(f"I{k}") for k in (1, 2, 3)]
-_D, _W = FEATURE_NAMES.index("D"), FEATURE_NAMES.index("W")
+_D, _W = SIZE_INDEX, WEIGHT_INDEX
 
 
 def table1(log: LookLog) -> dict[str, Any]:
