@@ -97,7 +97,7 @@ def test_the_novel_unit_wins_beyond_the_acceptance_distance(ten) -> None:
     assert memory.size == 10  # a NEW outcome does not store by itself
 
 
-def test_final_trial_is_never_undetermined(ten) -> None:
+def test_a_final_trial_that_sees_enough_is_never_undetermined(ten) -> None:
     memory, patterns = ten
     rng = np.random.default_rng(5)
     queries = [_look(p, rng, 3.0) for p in patterns] + list(rng.random((10, FEATURE_DIM)))
@@ -106,6 +106,30 @@ def test_final_trial_is_never_undetermined(ten) -> None:
             result = memory.match(q, known, final_trial=True)
             assert result.outcome != MatchOutcome.UNDETERMINED
             assert (result.address >= 0) == (result.outcome == MatchOutcome.IDENTIFIED)
+
+
+def test_a_final_look_that_knows_too_few_features_is_undetermined_and_stores_nothing(
+        ten) -> None:
+    # An object hidden behind another: perception gives no I, T, S, D; touch gives W.
+    memory, patterns = ten
+    only_w = np.zeros(FEATURE_DIM, bool)
+    only_w[WEIGHT_INDEX] = True
+    few = ALL_KNOWN.copy()
+    few[CONFIG.min_common_features - 1:] = False  # one fewer than any unit compares
+    size, revision = memory.size, memory.revision
+    for known in (only_w, few):
+        result = memory.match(1.0 - patterns[0], known, final_trial=True)
+        assert (result.outcome, result.address) == (MatchOutcome.UNDETERMINED, -1)
+    assert memory.stats.unseen == 2
+    assert (memory.size, memory.revision) == (size, revision)
+    enough = few.copy()
+    enough[CONFIG.min_common_features - 1] = True
+    assert memory.match(1.0 - patterns[0], enough, final_trial=True).outcome \
+        is not MatchOutcome.UNDETERMINED
+    empty = AssociativeMemory(CONFIG)
+    assert empty.match(patterns[0], only_w, final_trial=True).outcome \
+        is MatchOutcome.UNDETERMINED
+    assert empty.match(patterns[0], ALL_KNOWN, final_trial=True).outcome is MatchOutcome.NEW
 
 
 def test_a_match_that_identifies_nothing_changes_nothing(ten) -> None:

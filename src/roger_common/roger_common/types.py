@@ -267,7 +267,8 @@ class MemoryRequest:
         features: FEATURE_DIM floats in [0, 1].
         known: FEATURE_DIM booleans; unknown features are ignored, not taken as 0.
         final_trial: For MATCH: all improvement trials are used up, so the memory must
-            decide between IDENTIFIED and NEW (never UNDETERMINED).
+            decide between IDENTIFIED and NEW (UNDETERMINED only for a look that
+            knows too few features to be compared with anything, docs/memory.md).
         focus_id: The focus (attention shift) the features were taken in; the memory
             groups the looks of one focus by it (a STORE keeps them all). 0: unknown.
     """

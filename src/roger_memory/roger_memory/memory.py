@@ -6,7 +6,10 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
 (:mod:`roger_memory.network`): its winner-take-all over one output per address and one
 *novel* output gives the address, and the winner's softmax share gives the confidence.
 
-* Final match: the winning address is IDENTIFIED; the novel unit winning is NEW.
+* Final match: the winning address is IDENTIFIED; the novel unit winning is NEW. A look
+  that knows fewer than ``min_common_features`` features (only the weight of an object
+  hidden behind another) is UNDETERMINED even then: no unit can compare it, and an
+  address stored from it could never be matched.
 * Non-final match: IDENTIFIED iff an address wins with a share >= ``identify_share`` and
   the query knows every feature the address knows (vision alone cannot exclude a stored
   object that differs in the weight, so a look without W is never identified as an
@@ -60,6 +63,9 @@ class MemoryStats:
         coverage_holds: Non-final identifications held back because the address knows a
             feature (the weight) that the query does not.
         refinements: Looks added to an address after an identification.
+        unseen: Final trials answered UNDETERMINED because the look knows fewer than
+            ``min_common_features`` features (e.g. only W of an object hidden behind
+            another): nothing to compare, and nothing a store could match again.
     """
 
     matches: int = 0
@@ -69,6 +75,7 @@ class MemoryStats:
     vetoes: int = 0
     coverage_holds: int = 0
     refinements: int = 0
+    unseen: int = 0
 
 
 @dataclass(frozen=True)
@@ -201,8 +208,9 @@ class AssociativeMemory:
         Args:
             features: FEATURE_DIM floats in [0, 1] (clipped); unknown entries are ignored.
             known: FEATURE_DIM booleans; False where a feature is not measured yet.
-            final_trial: All improvement trials are used up: answer IDENTIFIED or NEW,
-                never UNDETERMINED.
+            final_trial: All improvement trials are used up: answer IDENTIFIED or NEW;
+                UNDETERMINED only when the look knows fewer than ``min_common_features``
+                features (nothing to compare, nothing to learn).
             focus_id: The focus the look belongs to (0: none). The looks of one focus
                 are kept until the next focus: a STORE stores them all, an identification
                 may refine its address with them.
@@ -228,6 +236,14 @@ class AssociativeMemory:
         if network is None:
             self._keep_look(focus_id, x, k)
         net = network or self._network
+        if final_trial and int(k.sum()) < self._config.min_common_features:
+            # Too little seen to compare with anything (no unit answers a look that knows
+            # fewer than min_common_features features), and an address stored from it
+            # could never be matched again: nothing to decide on, nothing to learn.
+            self.stats.unseen += 1
+            self._count(MatchOutcome.UNDETERMINED)
+            return Decision(MatchResult(MatchOutcome.UNDETERMINED, -1, 0.0), -1, 0.0, np.inf,
+                            False, False)
         if self.size == 0:
             outcome = MatchOutcome.NEW if final_trial else MatchOutcome.UNDETERMINED
             self._count(outcome)
