@@ -263,7 +263,7 @@ def test_a_stray_position_does_not_move_an_entry_but_a_repeated_one_does() -> No
     assert m.get(eid).position == pytest.approx((0.63, 0.0, 0.05))
 
 
-def test_while_the_eyes_stand_still_a_grown_window_is_a_merge_that_only_adds_the_weight(
+def test_while_the_eyes_stand_still_a_grown_window_is_a_merge_that_only_gives_the_weight(
 ) -> None:
     # Random 231's first focus: a box seen on its own after the shift, merged with the
     # two objects behind it after the haptic improvement (nothing had moved; fresh pixel
@@ -291,6 +291,14 @@ def test_while_the_eyes_stand_still_a_grown_window_is_a_merge_that_only_adds_the
     e = m.get(eid)
     assert e.features[0] == pytest.approx(0.35) and e.roi.bbox == (0, 0, 3, 3)
     assert e.features[WEIGHT_INDEX] == pytest.approx(0.8)          # kept for the focus
+    # Random 42: the entry's first W was another object's reading; the haptic
+    # improvement's fresh reading (1.6 kg) comes with a merged window and still counts.
+    grown = dataclasses.replace(roi(0.53, 0.0, value=0.7, weight=0.4),
+                                position=(0.53, 0.0, 0.05), bbox=(0, 0, 3, 9))
+    m.update([grown], now=5.0, still=True)
+    e = m.get(eid)
+    assert e.features[WEIGHT_INDEX] == pytest.approx(0.4)          # touch, not pixels
+    assert e.features[0] == pytest.approx(0.35) and e.roi.bbox == (0, 0, 3, 3)
 
 
 def test_after_the_eyes_moved_a_grown_window_is_the_entrys_only_view() -> None:

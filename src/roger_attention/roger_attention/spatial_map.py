@@ -28,7 +28,7 @@ import numpy as np
 
 from roger_attention.config import SpatialMapConfig
 from roger_common.geometry import as_point
-from roger_common.types import FEATURE_NAMES, Roi
+from roger_common.types import FEATURE_NAMES, WEIGHT_INDEX, Roi
 
 Position = tuple[float, float, float]
 #: Says whether a robot-frame position is currently inside the retina.
@@ -249,8 +249,8 @@ class SpatialMap:
             visible: Whether a map position is currently inside the retina.
             still: The eyes have not moved since the previous frame (an improvement
                 trial): a ROI whose window grew beyond ``MERGE_GROWTH`` times its entry's
-                is then a merge and replaces neither the entry's position, features nor
-                window (``_associate``).
+                is then a merge and replaces neither the entry's position, visual
+                features nor window, only its weight (``_associate``).
 
         Returns:
             The ids of new, associated, moved and vanished entries; the indices of ROIs
@@ -355,12 +355,14 @@ class SpatialMap:
     def _associate(self, entry: MapEntry, roi: Roi, now: float, still: bool) -> bool:
         # While the eyes stood still, a ROI whose window grew beyond MERGE_GROWTH times
         # the entry's is the object's region merged with a neighbour's (fresh pixel noise
-        # flipped perception's split): it keeps the entry alive and adds what the entry
-        # has not measured yet (the weight of a haptic improvement), but its position,
-        # other features and window are the blend's: the entry keeps those of its last
-        # ROI, whose window is still on the same pixels. A window that shrinks (the object
-        # parted from a neighbour) is taken. After the eyes moved, the old window means
-        # nothing in the new image: the ROI is taken as it is.
+        # flipped perception's split): it keeps the entry alive and gives its weight (W
+        # is touch, the newest reading at the place, not the window's pixels: a haptic
+        # improvement's fresh reading replaces an older one), but its position, other
+        # features and window are the blend's: the entry keeps those of its last ROI,
+        # whose window is still on the same pixels, and takes of them only what it has
+        # not measured yet. A window that shrinks (the object parted from a neighbour) is
+        # taken. After the eyes moved, the old window means nothing in the new image: the
+        # ROI is taken as it is.
         before = _area(entry.roi.bbox)
         hold = still and before > 0 and _area(roi.bbox) > MERGE_GROWTH * before
         if not hold:
@@ -370,7 +372,11 @@ class SpatialMap:
         entry.last_frame = self.frame
         entry.misses = 0
         known = np.asarray(roi.known, bool)
-        take = known & ~entry.known if hold else known
+        if hold:
+            take = known & ~entry.known
+            take[WEIGHT_INDEX] = known[WEIGHT_INDEX]
+        else:
+            take = known
         entry.features[take] = np.asarray(roi.features, np.float32)[take]
         entry.known |= known
         moved = (entry.mapped and entry.mapped_position is not None and
