@@ -116,11 +116,11 @@ def test_a_final_look_that_knows_too_few_features_is_undetermined_and_stores_not
     only_w[WEIGHT_INDEX] = True
     few = ALL_KNOWN.copy()
     few[CONFIG.min_common_features - 1:] = False  # one fewer than any unit compares
-    size, revision = memory.size, memory.revision
+    size, revision, matches = memory.size, memory.revision, memory.stats.matches
     for known in (only_w, few):
         result = memory.match(1.0 - patterns[0], known, final_trial=True)
         assert (result.outcome, result.address) == (MatchOutcome.UNDETERMINED, -1)
-    assert memory.stats.unseen == 2
+    assert (memory.stats.unseen, memory.stats.matches) == (2, matches + 2)
     assert (memory.size, memory.revision) == (size, revision)
     enough = few.copy()
     enough[CONFIG.min_common_features - 1] = True

@@ -240,6 +240,7 @@ class AssociativeMemory:
             # Too little seen to compare with anything (no unit answers a look that knows
             # fewer than min_common_features features), and an address stored from it
             # could never be matched again: nothing to decide on, nothing to learn.
+            self.stats.matches += int(self.size > 0)
             self.stats.unseen += 1
             self._count(MatchOutcome.UNDETERMINED)
             return Decision(MatchResult(MatchOutcome.UNDETERMINED, -1, 0.0), -1, 0.0, np.inf,
