@@ -3,7 +3,9 @@
 Objects are drawn as categories (shape, size, intensity, weight, texture), each placed a
 few times, at random positions in reach and view, without overlap; optionally a few more
 in view beyond the arms' reach. Seeded: the same arguments give the same world (and the
-objects in reach do not depend on ``out_of_reach``).
+objects in reach do not depend on ``out_of_reach``). Two recipes narrow the draw:
+``shape_twins`` (categories that differ only in shape) and ``yaw_copies`` (each
+category's copies turned over a quarter turn).
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ from roger_sim.world import (
 def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[float, float] =
                  (0.10, 0.18), textures: tuple[str, ...] = ("plain",), name: str = "",
                  min_gap: float = 0.04, max_tries: int = 20000,
-                 out_of_reach: int = 0) -> WorldSpec:
+                 out_of_reach: int = 0, *, shape_twins: bool = False,
+                 yaw_copies: bool = False) -> WorldSpec:
     """A world of ``n_categories`` categories, each placed ``copies`` times in reach.
 
     Grey levels are drawn from 50-130, the range of the paper's Table 1 (59-99) widened a
@@ -46,14 +49,37 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
         out_of_reach: Objects placed after those, in view but beyond the arms' reach
             (1.25-1.7 m away, bearing within 50 degrees), one of each category in turn,
             named ``c<category>_far<k>``.
+        shape_twins: Categories that differ only in shape: one size, grey level, weight
+            and texture, drawn once from the usual ranges, shared by every category, and a
+            distinct shape each (so at most ``len(SHAPES)`` categories). The rule that keeps
+            categories apart in grey level is off: here they share it on purpose. Adds
+            ``_twins`` to the default name.
+        yaw_copies: Copy ``k`` of each category stands at yaw ``k * (pi / 2) / (copies -
+            1)`` (rounded to 0.01 rad; a single copy at 0) instead of a random yaw, so the
+            copies show one category from views spread over a quarter turn. The random
+            yaw is still drawn and thrown away, so positions are those of the same call
+            without the flag. Objects beyond reach keep a random yaw. Adds ``_yaw`` to the
+            default name (after ``_twins``).
 
     Raises:
+        ValueError: ``shape_twins`` with more categories than shapes.
         WorldFileError: The objects do not fit in the workspace.
     """
+    if shape_twins and n_categories > len(SHAPES):
+        raise ValueError(f"shape_twins: n_categories must be at most {len(SHAPES)} (one "
+                         f"category a shape: {', '.join(SHAPES)}), got {n_categories}")
     rng = np.random.default_rng(seed)
-    name = name or f"random_{n_categories}x{copies}_{seed}"
+    name = name or (f"random_{n_categories}x{copies}_{seed}"
+                    + ("_twins" if shape_twins else "") + ("_yaw" if yaw_copies else ""))
     categories: list[tuple[str, float, int, float, str]] = []
     used: set[tuple[str, str, int]] = set()
+    if shape_twins:
+        size = round(float(rng.uniform(*size_range)), 2)
+        intensity = int(rng.integers(50, 131))
+        weight = round(float(rng.uniform(0.2, 1.8)), 1)
+        texture = str(rng.choice(textures))
+        shapes = rng.choice(SHAPES, size=n_categories, replace=False)
+        categories = [(str(shape), size, intensity, weight, texture) for shape in shapes]
     while len(categories) < n_categories:
         cat = (str(rng.choice(SHAPES)), round(float(rng.uniform(*size_range)), 2),
                int(rng.integers(50, 131)), round(float(rng.uniform(0.2, 1.8)), 1),
@@ -66,10 +92,11 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
     placed: list[ObjectSpec] = []
     source = f"<random world {name}>"
     tries = 0
-    near = [(c, f"c{c:02d}_{k}", False) for c in range(n_categories) for k in range(copies)]
-    far = [(k % n_categories, f"c{k % n_categories:02d}_far{k // n_categories}", True)
+    near = [(c, f"c{c:02d}_{k}", False, _copy_yaw(k, copies) if yaw_copies else None)
+            for c in range(n_categories) for k in range(copies)]
+    far = [(k % n_categories, f"c{k % n_categories:02d}_far{k // n_categories}", True, None)
            for k in range(out_of_reach)]
-    for c, obj_name, beyond in near + far:
+    for c, obj_name, beyond, fixed_yaw in near + far:
         shape, size, intensity, weight, texture = categories[c]
         while True:
             tries += 1
@@ -82,10 +109,10 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
             else:
                 r = float(rng.uniform(0.45, 1.1))
                 bearing = float(rng.uniform(-math.radians(70), math.radians(70)))
-            d = {"name": obj_name, "shape": shape,
-                 "position": [round(r * math.cos(bearing), 3),
-                              round(r * math.sin(bearing), 3)],
-                 "yaw": round(float(rng.uniform(0, math.pi)), 2), "size": size,
+            position = [round(r * math.cos(bearing), 3), round(r * math.sin(bearing), 3)]
+            yaw = round(float(rng.uniform(0, math.pi)), 2)  # drawn always: same rng stream
+            d = {"name": obj_name, "shape": shape, "position": position,
+                 "yaw": yaw if fixed_yaw is None else fixed_yaw, "size": size,
                  "intensity": intensity, "weight": weight, "texture": texture}
             try:
                 spec = object_from_dict(d, source, f"objects[{len(placed)}]")
@@ -104,6 +131,11 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
             break
     return parse_world({"name": name, "objects": [world_to_dict_obj(o) for o in placed]},
                        source)
+
+
+def _copy_yaw(k: int, copies: int) -> float:
+    """Yaw of copy ``k`` of ``copies`` spread evenly over 0 to pi / 2, radians."""
+    return 0.0 if copies <= 1 else round(k * (math.pi / 2) / (copies - 1), 2)
 
 
 def world_to_dict_obj(o: ObjectSpec) -> dict:
