@@ -1,4 +1,5 @@
-"""Haptic improvement: reach, touch, lift and weigh Table 1's objects from joint torques."""
+"""Haptic improvement: reach, touch, probe, lift and weigh objects; weight from joint torques,
+shape from the hand's tactile contacts."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roger_common.types import Action, ControllerState, Goal
+from roger_common.conversions import haptic_msg, msg_to_haptic
+from roger_common.errors import ConfigError, MessageError
+from roger_common.types import Action, ControllerState, Goal, HapticReading, TactileContact
 from roger_sim.config import SimConfig
-from roger_sim.haptics import GRAVITY, weight_from_efforts
+from roger_sim.haptics import GRAVITY, probe_offsets, weight_from_efforts
 from roger_sim.simulator import Simulator
-from roger_sim.world import load_world
+from roger_sim.world import load_world, parse_world
 
 TABLE1 = Path(__file__).resolve().parents[1] / "worlds" / "table1.yaml"
 NOISE = 0.02
@@ -74,3 +77,158 @@ def test_touching_nothing_and_choosing_the_arm() -> None:
         # A non-haptic goal clears last_haptic.
         sim.execute(Goal(2, Action.ATTENTION_SHIFT, (0.8, 0.2, 0.1)))
         assert sim.last_haptic is None and sim.render().haptic is None
+
+
+# -- shape from touch (probe touches) ------------------------------------------------------
+SHAPES = {"name": "touch_shapes", "objects": [
+    {"name": "sphere", "shape": "sphere", "position": [0.75, 0.30], "size": 0.20,
+     "intensity": 80, "weight": 0.7},
+    {"name": "prism", "shape": "prism", "position": [0.60, -0.62], "size": 0.20,
+     "intensity": 90, "weight": 0.6}]}
+#: Readings of table1.yaml's first two objects by the routine before probe touches existed
+#: (commit 487cef8), SimConfig(weight_noise_kg=NOISE), seed 11: physics steps, contact
+#: position, weight. probe_directions = 0 must give them again, bit for bit up to rounding.
+BEFORE_PROBES = {
+    "obj01": (478, (0.5767845386942037, 0.5838431839603682, 0.29998567637714535),
+              1.5579576111186069),
+    "obj02": (503, (0.7922841087002246, 0.21435799922045207, 0.2999862726755254),
+              0.995935367651175),
+}
+
+
+def tilt_deg(normal: tuple[float, float, float]) -> float:
+    return math.degrees(math.acos(max(-1.0, min(1.0, normal[2]))))
+
+
+def run_haptics(world_data: dict | None, config: SimConfig, names: tuple[str, ...] = ()
+                ) -> dict[str, tuple]:
+    world = load_world(TABLE1) if world_data is None else parse_world(world_data, "test")
+    out = {}
+    with Simulator(world, config, seed=11) as sim:
+        start = sim.object_poses()
+        for i, obj in enumerate(world.objects, start=1):
+            if names and obj.name not in names:
+                continue
+            x, y, z, _ = start[obj.name]
+            report = sim.execute(Goal(i, Action.HAPTIC_IMPROVEMENT, (x, y, z)))
+            out[obj.name] = (report, sim.last_haptic, start[obj.name])
+    return out
+
+
+@pytest.fixture(scope="module")
+def shape_readings() -> dict[str, tuple]:
+    # Noiseless contact points: these tests check the geometry the sensor sees.
+    return run_haptics(SHAPES, SimConfig(weight_noise_kg=NOISE, tactile_noise_m=0.0))
+
+
+def test_default_probes_and_offsets() -> None:
+    cfg = SimConfig()
+    offsets = probe_offsets(cfg)
+    assert len(offsets) == cfg.probe_directions >= 3
+    for (dx, dy), k in zip(offsets, range(cfg.probe_directions), strict=True):
+        angle = 2 * math.pi * k / cfg.probe_directions
+        assert (dx, dy) == pytest.approx((cfg.probe_radius_m * math.cos(angle),
+                                          cfg.probe_radius_m * math.sin(angle)))
+    assert probe_offsets(SimConfig(probe_directions=0)) == []
+    with pytest.raises(ConfigError, match="probe_directions"):
+        SimConfig(probe_directions=-1)
+
+
+def test_box_tops_feel_flat(table1_readings: dict) -> None:
+    cfg = SimConfig()
+    for name, (_, reading, _, _, before) in table1_readings.items():
+        contacts = reading.contacts
+        # Every probe lands on the 30 cm box top: the first touch and one per direction.
+        assert len(contacts) == 1 + cfg.probe_directions, (name, contacts)
+        assert [c.probe for c in contacts[1:]] == probe_offsets(cfg)
+        top = 2 * before[2]
+        for c in contacts:
+            assert tilt_deg(c.normal) < 2.0, (name, c)  # outward: up, not down
+            assert abs(c.point[2] - top) < 0.003, (name, c)
+            assert math.dist(c.point[:2], before[:2]) < 0.15, (name, c)
+
+
+def test_first_contact_is_the_reading_position(table1_readings: dict) -> None:
+    for name, (_, reading, _, _, _) in table1_readings.items():
+        first = reading.contacts[0]
+        assert first.probe == (0.0, 0.0)
+        # Only the tactile sensor noise (1 mm std) lies between them.
+        assert math.dist(first.point, reading.position) < 5 * SimConfig().tactile_noise_m
+        assert first.point != reading.position
+
+
+def test_sphere_probes_feel_the_curve(shape_readings: dict) -> None:
+    report, reading, start = shape_readings["sphere"]
+    assert report.converged and reading.contact
+    first, probes = reading.contacts[0], reading.contacts[1:]
+    assert first.point == reading.position  # noiseless here
+    assert tilt_deg(first.normal) < 2.0 and first.point[2] == pytest.approx(0.2, abs=0.003)
+    assert len(probes) == SimConfig().probe_directions
+    for c in probes:
+        assert c.point[2] < first.point[2] - 0.0003, c  # lower than the top
+        assert 3.0 < tilt_deg(c.normal) < 45.0, c
+        away = np.subtract(c.point[:2], first.point[:2])
+        # The normal leans away from the first touch, the way the hand moved.
+        assert float(np.dot(c.normal[:2], away)) > 0, c
+        assert float(np.dot(c.normal[:2], c.probe)) > 0, c
+
+
+def test_prism_ridge_tilts_or_drops(shape_readings: dict) -> None:
+    report, reading, _ = shape_readings["prism"]
+    assert report.converged and reading.contact
+    cfg = SimConfig()
+    touched = {c.probe for c in reading.contacts[1:]}
+    # The probe along the ridge lands on it; the others go down its flanks (or off them).
+    assert touched, reading.contacts
+    fell_off = [p for p in probe_offsets(cfg) if p not in touched]
+    steep = [c for c in reading.contacts[1:] if tilt_deg(c.normal) > 30.0]
+    assert steep or fell_off, reading.contacts
+    # The ridge's flanks stand 60 degrees from the horizontal.
+    for c in steep:
+        assert tilt_deg(c.normal) == pytest.approx(60.0, abs=3.0), c
+
+
+def test_probing_costs_at_most_half_again(table1_readings: dict) -> None:
+    # Simulated time (deterministic), not wall-clock time: the probes' budget.
+    for name, (steps, _, _) in BEFORE_PROBES.items():
+        report = table1_readings[name][0]
+        assert steps < report.physics_steps <= 1.5 * steps, (name, report.physics_steps)
+
+
+def test_no_probes_is_the_routine_before_them() -> None:
+    cfg = SimConfig(weight_noise_kg=NOISE, probe_directions=0)
+    for name, (report, reading, _) in run_haptics(None, cfg, tuple(BEFORE_PROBES)).items():
+        steps, position, weight = BEFORE_PROBES[name]
+        assert report.physics_steps == steps, name
+        assert reading.position == pytest.approx(position, abs=1e-9), name
+        assert reading.weight == pytest.approx(weight, abs=1e-9), name
+        assert len(reading.contacts) == 1 and reading.contacts[0].probe == (0.0, 0.0)
+        assert math.dist(reading.contacts[0].point, position) < 5 * cfg.tactile_noise_m
+
+
+def test_tactile_contacts_cross_the_wire() -> None:
+    contacts = (TactileContact((0.5, 0.1, 0.3), (0.0, 0.0, 1.0)),
+                TactileContact((0.54, 0.1, 0.29), (0.6, 0.0, 0.8), (0.04, 0.0)))
+    reading = HapticReading(arm=0, contact=True, position=(0.5, 0.1, 0.3), weight=1.0,
+                            contacts=contacts)
+    msg = haptic_msg(reading, goal_id=7, stamp=1.0)
+    assert msg_to_haptic(msg) == reading
+    bad = haptic_msg(reading, goal_id=7, stamp=1.0)
+    bad.probe_offsets = [0.0, 0.0, 0.04]
+    with pytest.raises(MessageError, match="probe offsets"):
+        msg_to_haptic(bad)
+    bad = haptic_msg(reading, goal_id=7, stamp=1.0)
+    bad.contact_points[1].z = float("nan")
+    with pytest.raises(MessageError, match="not finite"):
+        msg_to_haptic(bad)
+    bad = haptic_msg(reading, goal_id=7, stamp=1.0)
+    bad.contact_normals[0].z = 2.0
+    with pytest.raises(MessageError, match="unit"):
+        msg_to_haptic(bad)
+    empty = HapticReading(arm=1, contact=False, position=(0.5, 0.0, 0.05), weight=math.nan)
+    assert msg_to_haptic(haptic_msg(empty, 8, 2.0)).contacts == ()
+    bad = haptic_msg(empty, 8, 2.0)
+    bad.contact_points, bad.contact_normals, bad.probe_offsets = msg.contact_points, \
+        msg.contact_normals, msg.probe_offsets
+    with pytest.raises(MessageError, match="contact is false"):
+        msg_to_haptic(bad)

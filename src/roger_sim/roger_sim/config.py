@@ -53,6 +53,14 @@ class SimConfig:
         lift_height_m: How high a haptic improvement lifts an object, metres.
         touch_speed: Speed of the hand coming down onto an object, m/s.
         weigh_steps: Physics steps averaged for one weight measurement.
+        probe_directions: Probe touches around the first touch of a haptic improvement
+            (shape from touch), evenly spread directions from +x; 0: none.
+        probe_radius_m: Horizontal distance of a probe touch from the first touch, metres.
+        probe_rise_m: How far above the first touch the hand rises after a probe touch
+            (it goes across once it is clear of the top, while still rising), metres.
+        probe_depth_m: How far below the first touch a probe comes down before it counts
+            as fallen off the object, metres.
+        tactile_noise_m: Std of the Gaussian noise of a tactile contact point, metres.
     """
 
     image_size: int = 128
@@ -83,6 +91,11 @@ class SimConfig:
     lift_height_m: float = 0.08
     touch_speed: float = 0.5
     weigh_steps: int = 24
+    probe_directions: int = 3
+    probe_radius_m: float = 0.04
+    probe_rise_m: float = 0.03
+    probe_depth_m: float = 0.08
+    tactile_noise_m: float = 0.001
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -129,6 +142,16 @@ class SimConfig:
         _check("lift_height_m", self.lift_height_m, self.lift_height_m <= 0.3, "<= 0.3 m")
         _check("settle_steps", self.settle_steps, 1 <= self.settle_steps <= 100, "in [1, 100]")
         _check("weigh_steps", self.weigh_steps, 1 <= self.weigh_steps <= 1000, "in [1, 1000]")
+        _check("probe_directions", self.probe_directions, 0 <= self.probe_directions <= 16,
+               "in [0, 16]")
+        _check("probe_radius_m", self.probe_radius_m, 0.0 < self.probe_radius_m <= 0.2,
+               "in (0, 0.2] m")
+        _check("probe_rise_m", self.probe_rise_m, 0.0 < self.probe_rise_m <= 0.2,
+               "in (0, 0.2] m")
+        _check("probe_depth_m", self.probe_depth_m, 0.0 < self.probe_depth_m <= 0.5,
+               "in (0, 0.5] m")
+        _check("tactile_noise_m", self.tactile_noise_m, 0.0 <= self.tactile_noise_m <= 0.05,
+               "in [0, 0.05] m")
 
     @property
     def focal_px(self) -> float:

@@ -1,11 +1,18 @@
-"""Haptic improvement: an arm reaches an object, touches it, lifts it and weighs it.
+"""Haptic improvement: an arm reaches an object, touches it, probes its shape, lifts it and
+weighs it.
 
 The routine is a sequence of arm-servo references, each started when the previous one
-converged:
+converged (the probe moves: when it passed, see below):
 
     reach     hand at HOVER height over the target (planar inverse kinematics)
     approach  hand quickly down to just above the expected top (2 * target z + 5 cm)
     touch     hand down at ``touch_speed`` until it touches an object (contact points)
+    probe     (``probe_directions`` > 0) after the first touch, for each direction:
+              up towards ``probe_rise_m`` above the first touch, across to the first touch
+              + ``probe_radius_m`` * direction, down at ``touch_speed`` until the hand
+              touches something or is ``probe_depth_m`` below the first touch (it fell off
+              the object: nothing recorded); an unreachable probe is skipped. Then back
+              over the first touch, down at ``touch_speed`` to touch it again, and grasp
     lift      a fixed constraint holds the object (a simulated grasp); lift it
     weigh     hold still: let it settle ``weigh_steps``, then average the lift joint's
               force over ``weigh_steps`` more
@@ -18,6 +25,18 @@ applies tau = g_model(q) + m g, where g_model is the gravity torque of the arm a
 (pybullet inverse dynamics with zero speed and acceleration). So
 m = mean(tau - g_model) / g  (equation 5 then normalises it: W = w / W_max), plus
 Gaussian sensor noise of std ``weight_noise_kg``.
+
+The probe moves are via points, not stops, so that probing costs at most half of the
+routine's time (docs/simulator.md has the measurements): the hand goes across as soon as
+it is ``PROBE_GLIDE`` above the highest touch so far (while still rising), at that
+height, and starts down once every arm joint is within tolerance of the probe's pose.
+On a convex top, touched first at its highest point, nothing lies in the way.
+
+Shape from touch: every touch (the first and each probe that touched) is one
+:class:`TactileContact`, what a tactile sensor on the fingertip reports: the contact point
+on the touched surface (plus Gaussian noise of std ``tactile_noise_m``) and that surface's
+outward normal (noiseless: the direction of a tactile array's pressure pattern, known far
+better than the point). They come from the hand's contact query, never from object poses.
 """
 
 from __future__ import annotations
@@ -27,7 +46,7 @@ import math
 import numpy as np
 import pybullet as pb
 
-from roger_common.types import ControllerState, HapticReading
+from roger_common.types import ControllerState, HapticReading, TactileContact
 from roger_sim.config import SimConfig
 from roger_sim.controllers import JointServo
 from roger_sim.robot import ARM_REST, HOVER, JOINT_LIMITS, RobotModel, arm_ik
@@ -35,6 +54,9 @@ from roger_sim.robot import ARM_REST, HOVER, JOINT_LIMITS, RobotModel, arm_ik
 GRAVITY: float = 9.81
 #: Smallest normal force that counts as a touch, newtons.
 TOUCH_FORCE: float = 0.5
+#: Between probe touches the hand glides to this far above the first touch's height (the
+#: expected top) before it comes down at ``touch_speed``, metres.
+PROBE_GLIDE: float = 0.003
 
 
 def weight_from_efforts(efforts: np.ndarray, gravity_model: np.ndarray) -> float:
@@ -48,6 +70,17 @@ def weight_from_efforts(efforts: np.ndarray, gravity_model: np.ndarray) -> float
                  / GRAVITY)
 
 
+def probe_offsets(config: SimConfig) -> list[tuple[float, float]]:
+    """Horizontal offsets (dx, dy) of the probe touches from the first touch, robot frame.
+
+    ``probe_directions`` unit directions evenly spread from +x (0, 90, 180, 270 degrees for
+    four), each ``probe_radius_m`` long; none when ``probe_directions`` is 0.
+    """
+    n, r = config.probe_directions, config.probe_radius_m
+    return [(r * math.cos(2.0 * math.pi * k / n), r * math.sin(2.0 * math.pi * k / n))
+            for k in range(n)]
+
+
 class HapticRoutine:
     """One haptic improvement by one arm (see the module docstring for the phases).
 
@@ -59,7 +92,8 @@ class HapticRoutine:
         target: Point to touch, robot frame, metres.
         objects: Body unique id -> object name of everything that can be touched.
         config: Simulator configuration.
-        rng: Generator of the weight sensor noise.
+        rng: Generator of the weight sensor noise; the tactile noise comes from a child
+            of it (``Generator.spawn``), which leaves its own draws as they were.
     """
 
     def __init__(self, client: int, robot: RobotModel, arm: str, servo: JointServo,
@@ -79,10 +113,22 @@ class HapticRoutine:
         self._contact_z = 0.0
         self._contact_point = (math.nan, math.nan, math.nan)
         self._touched: int | None = None
+        # Spawning draws nothing from ``rng``: the weight noise of this and every later goal
+        # is the same with or without probe touches (probe_directions = 0 is today's run).
+        self._tactile_rng = rng.spawn(1)[0]
+        self._contacts: list[TactileContact] = []
+        self._probes = probe_offsets(config)
+        self._next_probe = 0
+        self._probe = (0.0, 0.0)
+        self._probe_planar: tuple[float, float] = (0.0, 0.0)
+        # Lift height of the highest touch so far (the first touch's, on a convex top).
+        self._top = 0.0
         self._efforts: list[float] = []
         self._gravity: list[float] = []
-        self._floor = JOINT_LIMITS[f"{arm.split('_')[0]}_arm_lift"][0] + 0.01
-        self._dof = robot.dof_index[f"{arm.split('_')[0]}_arm_lift"]
+        lift = f"{arm.split('_')[0]}_arm_lift"
+        self._floor = JOINT_LIMITS[lift][0] + 0.01
+        self._ceiling = JOINT_LIMITS[lift][1]
+        self._dof = robot.dof_index[lift]
         ik = arm_ik(arm, (self.target[0], self.target[1]))
         if ik is None:
             self.servo.fail()
@@ -101,14 +147,81 @@ class HapticRoutine:
         """0 for the left arm, 1 for the right arm (as in Goal.arm)."""
         return 0 if self.arm == "left_arm" else 1
 
-    def _contact(self) -> tuple[int, tuple[float, float, float]] | None:
+    def _contact(self) -> tuple[int, tuple[float, float, float],
+                                tuple[float, float, float]] | None:
+        """The hand's tactile sensor: touched body, contact point on it, its outward normal.
+
+        bodyA is the robot, so positionOnB (6) lies on the object and contactNormalOnB (7),
+        which points from B to A, is the object's outward surface normal there.
+        """
         points = pb.getContactPoints(bodyA=self.robot.body,
                                      linkIndexA=self.robot.hand_link[self.arm],
                                      physicsClientId=self.client)
         for point in points:
             if point[2] in self.objects and point[9] > TOUCH_FORCE:
-                return point[2], tuple(point[6])
+                return point[2], tuple(point[6]), tuple(point[7])
         return None
+
+    def _record(self, point: tuple[float, float, float], normal: tuple[float, float, float],
+                probe: tuple[float, float]) -> None:
+        noisy = np.asarray(point, float) + self._tactile_rng.normal(
+            0.0, self.config.tactile_noise_m, 3)
+        unit = np.asarray(normal, float)
+        unit = unit / max(float(np.linalg.norm(unit)), 1e-12)
+        self._contacts.append(TactileContact(
+            point=(float(noisy[0]), float(noisy[1]), float(noisy[2])),
+            normal=(float(unit[0]), float(unit[1]), float(unit[2])),
+            probe=(float(probe[0]), float(probe[1]))))
+
+    @property
+    def _probe_height(self) -> float:
+        """Where the hand rises to after a probe touch: ``probe_rise_m`` above the top."""
+        return min(self._ceiling, self._top + self.config.probe_rise_m)
+
+    @property
+    def _glide_height(self) -> float:
+        """Where the hand moves across between probes: just above the highest touch."""
+        return min(self._probe_height, self._top + PROBE_GLIDE)
+
+    def _rise(self, q_arm: np.ndarray) -> None:
+        """Up from a probe (touched or fallen off), at the probe's planar pose."""
+        self._top = max(self._top, float(q_arm[0]))
+        self.phase = "probe_up"
+        self._go(self._probe_height, planar=self._probe_planar)
+
+    def _next_probe_or_return(self) -> None:
+        """Across to the next reachable probe at glide height, or back over the first touch."""
+        cx, cy = self.target[0], self.target[1]
+        while self._next_probe < len(self._probes):
+            dx, dy = self._probes[self._next_probe]
+            self._next_probe += 1
+            ik = arm_ik(self.arm, (cx + dx, cy + dy))
+            # An unreachable probe is skipped.
+            if ik is not None and self.servo.reachable(np.array([self._probe_height, *ik])):
+                self._probe, self._probe_planar = (dx, dy), ik
+                self.phase = "probe_move"
+                self._go(self._glide_height, planar=ik)
+                return
+        self.phase = "return"
+        self._go(self._glide_height)
+
+    def _passed(self, q_arm: np.ndarray) -> bool:
+        """Every arm joint within tolerance of the reference, moving or not.
+
+        The moves between probes end on this (a via point) rather than on convergence:
+        waiting for a critically damped servo to come to rest cost over half their time.
+        """
+        ref = self.servo.reference
+        return ref is not None and bool(np.all(np.abs(q_arm - ref) < self.servo.tolerance))
+
+    def _lower(self, bottom: float, planar: tuple[float, float]) -> bool:
+        """Move the lift reference down at ``touch_speed``; True once it is at ``bottom``."""
+        ref = self.servo.reference
+        if ref is not None and ref[0] > bottom:
+            lowered = max(bottom, ref[0] - self.config.touch_speed * self.config.time_step)
+            self.servo.move_reference(np.array([lowered, *planar]))
+            return False
+        return True
 
     def _go(self, lift: float, planar: tuple[float, float] | None = None,
             tolerance: float | None = None) -> None:
@@ -142,7 +255,8 @@ class HapticRoutine:
         if self.reading is None:
             contact = self._touched is not None
             self.reading = HapticReading(arm=self.side, contact=contact,
-                                         position=self._contact_point, weight=math.nan)
+                                         position=self._contact_point, weight=math.nan,
+                                         contacts=tuple(self._contacts))
         self.phase = "done"
 
     def abort(self) -> None:
@@ -165,12 +279,31 @@ class HapticRoutine:
             self._finish()
             return
         converged = state == ControllerState.CONVERGED
-        if self.phase in ("approach", "touch"):
+        if self.phase == "probe_down":
             hit = self._contact()
             if hit is not None:
-                self._touched, self._contact_point = hit
+                # Recorded whatever body it is: a probe that lands on a neighbour of the
+                # first touch's object feels the same to a tactile sensor.
+                self._record(hit[1], hit[2], self._probe)
+                self._rise(q_arm)
+                return
+        if self.phase in ("approach", "touch", "retouch"):
+            hit = self._contact()
+            if hit is not None:
+                body = hit[0]
                 self._contact_z = float(q_arm[0])
-                self._grasp(self._touched)
+                if self.phase != "retouch":
+                    self._touched, self._contact_point = body, hit[1]
+                    self._record(hit[1], hit[2], (0.0, 0.0))
+                    if self._probes:
+                        self._probe_planar = self._planar
+                        self._rise(q_arm)
+                        return
+                else:
+                    # The grasp holds what the hand touches now (the probes may have
+                    # nudged the object); the reading keeps the first touch's position.
+                    self._touched = body
+                self._grasp(body)
                 self.phase = "lift"
                 # Under load the lift joint sags (the model does not know the object):
                 # accept a looser error while holding it.
@@ -183,15 +316,22 @@ class HapticRoutine:
             self._go(pre)
         elif self.phase == "approach" and converged:
             self.phase = "touch"
-        elif self.phase == "touch":
-            ref = self.servo.reference
-            if ref is not None and ref[0] > self._floor:
-                lowered = max(self._floor,
-                              ref[0] - self.config.touch_speed * self.config.time_step)
-                self.servo.move_reference(np.array([lowered, *self._planar]))
-            elif converged:
+        elif self.phase in ("touch", "retouch"):
+            if self._lower(self._floor, self._planar) and converged:
                 self.phase = "rise"  # reached the floor without touching anything
                 self._go(HOVER)
+        elif self.phase == "probe_up" and (converged or q_arm[0] >= self._glide_height):
+            # Clear of the highest touch: across at once, while still rising.
+            self._next_probe_or_return()
+        elif self.phase == "probe_move" and (converged or self._passed(q_arm)):
+            self.phase = "probe_down"
+        elif self.phase == "probe_down":
+            bottom = max(self._floor, self._contact_z - self.config.probe_depth_m)
+            if self._lower(bottom, self._probe_planar) and converged:
+                # Fell off the object: this probe touched nothing, it records nothing.
+                self._rise(q_arm)
+        elif self.phase == "return" and (converged or self._passed(q_arm)):
+            self.phase = "retouch"
         elif self.phase == "lift" and converged:
             self.phase = "weigh"
         elif self.phase == "weigh":
@@ -204,7 +344,8 @@ class HapticRoutine:
                 weight = weight_from_efforts(np.array(self._efforts), np.array(self._gravity))
                 weight += float(self.rng.normal(0.0, self.config.weight_noise_kg))
                 self.reading = HapticReading(arm=self.side, contact=True,
-                                             position=self._contact_point, weight=weight)
+                                             position=self._contact_point, weight=weight,
+                                             contacts=tuple(self._contacts))
                 self.phase = "lower"
                 self._go(self._contact_z + 0.005, tolerance=max(self.config.arm_tolerance,
                                                                  0.03))
