@@ -38,10 +38,11 @@ from typing import Any
 import torch
 import yaml
 
-from roger_common.types import FEATURE_NAMES
+from roger_common.types import FEATURE_NAMES, mode_of_dim
 from roger_experiments.compare import compare
 from roger_experiments.core_loop import run_core
 from roger_experiments.record_queries import read_csv, replay
+from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory, MemoryStats
 from roger_sim.world import TEXTURES, load_world, world_to_dict
 from roger_sim.worldgen import random_world
@@ -57,6 +58,9 @@ RECIPES: dict[str, dict[str, Any]] = {
     "touching": dict(n_categories=5, copies=3, size_range=(0.08, 0.14), min_gap=0.0),
     "far": dict(n_categories=8, copies=3, size_range=(0.08, 0.14), out_of_reach=3),
     "crowded": dict(n_categories=12, copies=3, size_range=(0.06, 0.10)),
+    # Issue 38's hard cases: categories that differ only in shape, copies at yaws 0..pi/2.
+    "twins": dict(n_categories=4, copies=3, size_range=(0.08, 0.14), shape_twins=True),
+    "yaw": dict(n_categories=8, copies=3, size_range=(0.08, 0.14), yaw_copies=True),
 }
 
 
@@ -106,7 +110,8 @@ def closed_loop(args: argparse.Namespace) -> None:
 
         def run_one(policy: str, seed: int, run_dir: Path, world: Any = world) -> dict:
             t0 = time.monotonic()
-            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir)
+            recorder, _ = run_core(world, policy, args.cycles, seed=seed, out=run_dir,
+                                   features=args.features)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
 
@@ -136,7 +141,8 @@ def replay_sets(args: argparse.Namespace) -> None:
     memories: list[AssociativeMemory] = []
 
     def make() -> AssociativeMemory:
-        memories.append(AssociativeMemory(seed=0))
+        mode = mode_of_dim(len(queries[0].features)) if queries else "paper"
+        memories.append(AssociativeMemory(MemoryConfig.for_mode(mode), seed=0))
         return memories[-1]
 
     scores = replay(queries, make)
@@ -179,6 +185,8 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=3, help="run seeds 0..N-1 per policy")
     p.add_argument("--cycles", type=int, default=204)
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--features", choices=("paper", "extended"), default="extended",
+                   help="feature mode of perception and memory")
     p.set_defaults(func=closed_loop)
     r = sub.add_parser("replay", help="recorded query sets through fresh memories")
     r.add_argument("files", type=Path, nargs="+")

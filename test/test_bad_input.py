@@ -18,7 +18,7 @@ from conftest import WORLDS
 from rclpy.parameter import Parameter
 
 from roger_common.errors import MessageError, WorldFileError
-from roger_common.types import FEATURE_DIM
+from roger_common.types import FEATURE_DIM, feature_dim
 from roger_sim.world import load_world
 
 OK = ("  - name: a\n    shape: box\n    position: [0.8, 0.0]\n    size: 0.2\n"
@@ -154,20 +154,31 @@ def test_memory_refuses_bad_requests_and_answers_a_resent_store_once(no_leaks, c
     node = MemoryNode(context=ctx)
     try:
         node.pub_result, node.pub_learned = Sink(), Sink()
-        feats = [0.1 * i for i in range(FEATURE_DIM)]
-        known = [True] * FEATURE_DIM
-        for bad in (MemoryRequest(request_id=1, op=7, features=feats, known=known),
-                    MemoryRequest(request_id=2, op=0, features=feats[:3], known=known[:3]),
-                    MemoryRequest(request_id=3, op=0, features=[float("nan")] * FEATURE_DIM,
+        mode = node.memory.config.features
+        n = feature_dim(mode)
+        feats = [0.05 * i for i in range(n)]
+        known = [True] * n
+        for bad in (MemoryRequest(request_id=1, op=7, feature_mode=mode, features=feats,
                                   known=known),
-                    MemoryRequest(request_id=4, op=1, features=[2.0] * FEATURE_DIM,
-                                  known=known)):
+                    MemoryRequest(request_id=2, op=0, feature_mode=mode, features=feats[:3],
+                                  known=known[:3]),
+                    MemoryRequest(request_id=3, op=0, feature_mode=mode,
+                                  features=[float("nan")] * n, known=known),
+                    MemoryRequest(request_id=4, op=1, feature_mode=mode,
+                                  features=[2.0] * n, known=known),
+                    # A look of the other mode (paper: the eleven), said so.
+                    MemoryRequest(request_id=6, op=1, feature_mode="paper",
+                                  features=feats[:FEATURE_DIM], known=known[:FEATURE_DIM]),
+                    MemoryRequest(request_id=7, op=1, feature_mode="nonsense",
+                                  features=feats, known=known)):
             node.on_request(bad)
         assert node.pub_result.msgs == [] and node.memory.size == 0
-        store = MemoryRequest(request_id=5, op=1, features=feats, known=known)
+        store = MemoryRequest(request_id=5, op=1, feature_mode=mode, features=feats,
+                              known=known)
         node.on_request(store)
         node.on_request(store)                     # re-sent: same answer, stored once
-        again = MemoryRequest(request_id=9, op=1, features=feats, known=known)
+        again = MemoryRequest(request_id=9, op=1, feature_mode=mode, features=feats,
+                              known=known)
         node.on_request(again)                     # re-sent by a restarted attention node
         assert node.memory.size == 1
         assert [m.address for m in node.pub_result.msgs] == [0, 0, 0]

@@ -14,8 +14,19 @@ import pytest
 from conftest import WORLDS
 
 from roger_bringup.cli import main
-from roger_common.types import ObjectSpec, Roi, WorldSpec
+from roger_common.types import (
+    FEATURE_NAMES,
+    SHAPE_FEATURE_NAMES,
+    WEIGHT_INDEX,
+    FeatureMode,
+    ObjectSpec,
+    Roi,
+    WorldSpec,
+    feature_dim,
+    feature_names,
+)
 from roger_experiments import feature_report, table1
+from roger_memory.config import MemoryConfig
 
 
 def _roger(*argv: str) -> None:
@@ -44,10 +55,13 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
     # with an overflow warning, which hid every other bar.
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        _roger("features", "--world", str(WORLDS / "table1.yaml"), "--out", str(tmp_path))
+        _roger("features", "--world", str(WORLDS / "table1.yaml"), "--features", "paper",
+               "--out", str(tmp_path))
     result = json.loads((tmp_path / "features.json").read_text())
+    assert result["feature_mode"] == "paper"
     focus = result["focus_looks"]
-    assert focus["features"][-1] == "W" and len(focus["ratio"]) == 11
+    assert focus["features"] == list(FEATURE_NAMES) and len(focus["ratio"]) == 11
+    assert result["all_looks"]["features"] == list(FEATURE_NAMES)
     assert focus["objects"] == 4 and focus["looks"] >= 8
     assert result["segmentation"]["merges"] == 0
     # The four 30 cm boxes placed within 3 cm of their centres (docs/perception.md).
@@ -60,12 +74,15 @@ def test_features_writes_its_table_looks_and_a_plot_without_warnings(tmp_path: P
         assert len(row["known"]) == 11 and set(row["known"]) <= {"0", "1"}, row
         assert row["known"][-1] == row["W_known"], row
     assert {row["known"][-1] for row in looks} == {"0", "1"}
-    assert "| I1 |" in (tmp_path / "features.md").read_text()
-    assert "**Positions**" in (tmp_path / "features.md").read_text()
+    assert list(looks[0])[9:21] == [*FEATURE_NAMES, "W_known"]
+    text = (tmp_path / "features.md").read_text()
+    assert "| I1 |" in text and "Feature mode: paper" in text
+    assert "**Extended features**" not in text and "| H |" not in text
+    assert "**Positions**" in text
     # The repeated looks at one fixation (3 by default): fresh pixel noise moves I1, not W
     # (felt once, carried at the place); they are rows of looks.csv but not in the spreads.
     noise = result["sensor_noise"]
-    assert noise["visits"] >= 3 and len(noise["ceiling"]) == 11
+    assert noise["visits"] >= 3 and noise["features"] == list(FEATURE_NAMES)
     assert noise["sd"][0] > 0.0 and noise["sd"][-1] == 0.0
     assert noise["ceiling"][0] == pytest.approx(focus["between"][0] / noise["sd"][0])
     rows = [row for row in looks if row["stage"] == feature_report.NOISE_STAGE]
@@ -85,6 +102,94 @@ def test_features_refuses_a_negative_number_of_noise_looks(tmp_path: Path, capsy
     assert done.value.code == 2
     assert "--noise-looks" in capsys.readouterr().err
     assert not (tmp_path / "features.json").exists()
+
+
+def test_features_in_the_extended_mode_reports_the_shape_features_too(tmp_path: Path) -> None:
+    # shapes.yaml: the four shapes, each once (the smallest world where H, R and E differ
+    # between categories; table1's four equal boxes read one H).
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _roger("features", "--world", str(WORLDS / "shapes.yaml"), "--features", "extended",
+               "--noise-looks", "2", "--out", str(tmp_path))
+    result = json.loads((tmp_path / "features.json").read_text())
+    names = list(feature_names(FeatureMode.EXTENDED))
+    assert result["feature_mode"] == "extended"
+    for key in ("focus_looks", "all_looks", "sensor_noise"):
+        assert result[key]["features"] == names, key
+    focus = result["focus_looks"]
+    assert len(focus["ratio"]) == len(focus["within"]) == len(names) == feature_dim("extended")
+    ratio = dict(zip(names, focus["ratio"], strict=True))
+    for f in ("H", "R", "E"):
+        assert math.isfinite(ratio[f]) and ratio[f] > 0.0, (f, ratio[f])
+    # Felt, like W, after the haptic improvement every place gets: measured, never NaN.
+    for f in ("TH", "TC", "TR"):
+        assert not math.isnan(ratio[f]), (f, ratio[f])
+    assert len(result["sensor_noise"]["ceiling"]) == feature_dim("extended")
+    text = (tmp_path / "features.md").read_text()
+    assert "Feature mode: extended" in text
+    assert all(f"| {f} | " in text for f in SHAPE_FEATURE_NAMES)
+    assert "**Extended features**: mean between/within ratio " in text
+    assert "nan" not in text.split("**Extended features**")[1].split("\n")[0]
+    with (tmp_path / "looks.csv").open() as f:
+        looks = list(csv.DictReader(f))
+    assert list(looks[0])[9:9 + len(names) + 1] == [*names, "W_known"]
+    for row in looks:  # W_known is W's flag, not the last feature's (TR)
+        assert len(row["known"]) == feature_dim("extended"), row
+        assert row["known"][WEIGHT_INDEX] == row["W_known"], row
+
+
+def _extended_look(obj: str, i1: float, touched: bool) -> feature_report.Look:
+    """A look of the extended mode, W known; touch's shape only when ``touched``."""
+    n = len(feature_names(FeatureMode.EXTENDED))
+    features, known = np.full(n, 0.5), np.ones(n, bool)
+    features[0] = i1
+    for name in ("TH", "TC", "TR"):  # weighed without a tactile contact: unknown, 0
+        k = feature_names(FeatureMode.EXTENDED).index(name)
+        known[k], features[k] = touched, features[k] if touched else 0.0
+    roi = Roi(0, (0, 0, 4, 4), (0.5, 0.0, 0.05), features, known)
+    return feature_report.Look("shift", 0, True, obj, 1.0, (obj,), roi)
+
+
+def test_a_feature_no_look_measured_is_reported_unknown_not_as_nan_or_zero_spread(
+        tmp_path: Path) -> None:
+    objects = tuple(ObjectSpec(n, "box", (0.5, y), 0.1, grey, 1.0)
+                    for n, y, grey in (("a", -0.2, 60), ("b", 0.2, 120)))
+    world = WorldSpec(objects)
+    looks = [_extended_look(o, v + e, touched=False) for o, v in (("a", 0.3), ("b", 0.7))
+             for e in (-0.01, 0.01)]
+    log = feature_report.LookLog(world, looks, 4)
+    assert log.feature_mode is FeatureMode.EXTENDED
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = feature_report.write(log, tmp_path)
+    names = list(feature_names(FeatureMode.EXTENDED))
+    s = result["focus_looks"]
+    assert s["features"] == names and result["feature_mode"] == "extended"
+    for f in ("TH", "TC", "TR"):  # NaN, not a within spread of 0 (ratio inf)
+        k = names.index(f)
+        assert math.isnan(s["within"][k]) and math.isnan(s["ratio"][k]), f
+    # The measured features keep their spreads: I1's looks +-0.01 around 0.3 and 0.7.
+    assert s["ratio"][0] == pytest.approx(np.std([0.3, 0.7], ddof=1)
+                                          / np.sqrt(4 * 0.01 ** 2 / 2))
+    text = (tmp_path / "features.md").read_text()
+    for f in ("TH", "TC", "TR"):
+        assert f"| {f} | unknown | - | - | - | - |" in text, f
+    assert "| W | unknown" not in text and "| H | 0.0000 |" in text
+    line = next(t for t in text.splitlines() if t.startswith("**Extended features**"))
+    assert "unknown (never measured): TH, TC, TR" in line and "nan" not in line
+    assert result["memory_separability"]["objects"] == 2  # W known: the memory's looks
+    with (tmp_path / "looks.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["W_known"], r["known"][WEIGHT_INDEX], r["known"][-1]) for r in rows] == \
+        [("1", "1", "0")] * 4
+
+
+def test_the_memory_of_another_mode_than_the_looks_is_refused() -> None:
+    world = WorldSpec((ObjectSpec("a", "box", (0.5, 0.0), 0.1, 60, 1.0),))
+    looks = [_extended_look("a", 0.3, touched=True)]
+    with pytest.raises(feature_report.ConfigError, match="extended"):
+        feature_report.memory_separability(looks, world, MemoryConfig.for_mode("paper"))
+    assert feature_report.memory_separability(looks, world)["objects"] == 1
 
 
 def test_the_ratio_plot_keeps_an_infinite_ratio_on_the_scale_of_the_others(tmp_path: Path

@@ -13,7 +13,7 @@ from roger_attention.config import QLearningConfig
 from roger_attention.fsm import STATES, State
 from roger_attention.qlearning import QTable
 from roger_common.errors import ConfigError
-from roger_common.types import FEATURE_DIM, Action
+from roger_common.types import Action, feature_dim
 from roger_experiments.gym_env import ENV_ID, RogerAttentionEnv, allowed_from_mask, run_qlearning
 from roger_memory.config import MemoryConfig
 
@@ -100,7 +100,7 @@ def test_feature_observation_and_render():
         assert not obs["known"].any()  # no focus before the first shift
         obs, *_ = env.step(int(Action.ATTENTION_SHIFT))
         assert env.observation_space.contains(obs)
-        assert obs["features"].shape == (FEATURE_DIM,) and obs["known"].any()
+        assert obs["features"].shape == (feature_dim(FAST_MEMORY.features),) and obs["known"].any()
         view = env.render()
         size = env.configs["sim_config"].image_size
         assert view.dtype == np.uint8 and view.shape[0] > 2 * size

@@ -28,7 +28,7 @@ from roger_memory.network import student_t_noise
 ALL_KNOWN = np.ones(FEATURE_DIM, bool)
 W_UNKNOWN = ALL_KNOWN.copy()
 W_UNKNOWN[WEIGHT_INDEX] = False
-CONFIG = MemoryConfig()
+CONFIG = MemoryConfig.for_mode("paper")  # these tests build paper-mode (11) looks
 SIGMA = np.sqrt(2.0) * np.asarray(CONFIG.feature_scale)
 
 
@@ -62,7 +62,7 @@ def _moved(x: np.ndarray, distance: float, rng: np.random.Generator,
 @pytest.fixture(scope="module")
 def ten() -> tuple[AssociativeMemory, np.ndarray]:
     patterns = _distinct_patterns(10, seed=11)
-    memory = AssociativeMemory(seed=0)
+    memory = AssociativeMemory(CONFIG, seed=0)
     addresses = [memory.store(p, ALL_KNOWN) for p in patterns]
     assert addresses == list(range(10))
     return memory, patterns
@@ -152,7 +152,7 @@ def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None
     x = _distinct_patterns(3, seed=12)
     x[2] = x[1]
     x[1, WEIGHT_INDEX], x[2, WEIGHT_INDEX] = 0.15, 0.45
-    memory = AssociativeMemory(seed=1)
+    memory = AssociativeMemory(CONFIG, seed=1)
     for p in x:
         memory.store(p, ALL_KNOWN)
     rng = np.random.default_rng(3)
@@ -175,7 +175,7 @@ def test_weight_twins_are_told_apart_only_after_the_weight_is_measured() -> None
 def test_a_heavy_twin_of_a_stored_light_object_is_new() -> None:
     light = _distinct_patterns(1, seed=13)[0]
     light[WEIGHT_INDEX] = 0.15
-    memory = AssociativeMemory(seed=2)
+    memory = AssociativeMemory(CONFIG, seed=2)
     memory.store(light, ALL_KNOWN)
     heavy = light.copy()
     heavy[WEIGHT_INDEX] = 0.55
@@ -190,7 +190,7 @@ def test_a_heavy_twin_of_a_stored_light_object_is_new() -> None:
 def test_unknown_weight_is_not_taken_as_zero() -> None:
     x = _distinct_patterns(2, seed=14)
     x[:, WEIGHT_INDEX] = 0.6
-    memory = AssociativeMemory(seed=2)
+    memory = AssociativeMemory(CONFIG, seed=2)
     for p in x:
         memory.store(p, W_UNKNOWN)  # stored without a weight (the arm never reached it)
     q = x[0].copy()
@@ -210,7 +210,7 @@ def test_an_object_never_weighed_does_not_take_in_a_weighed_look() -> None:
     # categories: docs/memory.md). Addresses that were weighed still identify it.
     x = _distinct_patterns(2, seed=14)
     x[:, WEIGHT_INDEX] = 0.6
-    memory = AssociativeMemory(seed=2)
+    memory = AssociativeMemory(CONFIG, seed=2)
     memory.store(x[0], W_UNKNOWN)
     memory.store(x[1], ALL_KNOWN)
     assert memory.match(x[0], ALL_KNOWN, final_trial=True).outcome == MatchOutcome.NEW
@@ -223,7 +223,7 @@ def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
     """A query equal to a stored look but for W, off by more than the veto yet within
     the acceptance distance overall: the network would identify, the veto does not."""
     x = _distinct_patterns(1, seed=15)[0]
-    memory = AssociativeMemory(seed=3)
+    memory = AssociativeMemory(CONFIG, seed=3)
     memory.store(x, ALL_KNOWN)
     q = x.copy()
     q[WEIGHT_INDEX] += 1.1 * CONFIG.veto[WEIGHT_INDEX]
@@ -238,7 +238,7 @@ def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:
     x = _distinct_patterns(2, seed=16)
     rng = np.random.default_rng(6)
-    memory = AssociativeMemory(seed=4)
+    memory = AssociativeMemory(CONFIG, seed=4)
     # Repeats well inside the acceptance distance (5 % of the robot's repeat pairs lie
     # beyond it, and are left out by design): the test is about the other object.
     shift, visual = _look(x[0], rng, 0.5), _look(x[0], rng, 0.5)
@@ -266,7 +266,7 @@ def test_two_looks_of_a_focus_that_complete_to_one_are_stored_once() -> None:
     visual = _look(x, rng, 0.5)
     after = _look(x, rng, 0.5)
     after[WEIGHT_INDEX] = visual[WEIGHT_INDEX]  # one weighing: every later frame carries it
-    memory = AssociativeMemory(seed=7)
+    memory = AssociativeMemory(CONFIG, seed=7)
     memory.match(np.where(W_UNKNOWN, visual, 0), W_UNKNOWN, focus_id=3)
     memory.match(visual, ALL_KNOWN, final_trial=True, focus_id=3)
     looks = memory.exemplars(memory.store(after, ALL_KNOWN, focus_id=3))
@@ -283,7 +283,7 @@ def test_refinement_reaches_one_acceptance_radius_and_does_not_chain() -> None:
     a = _distinct_patterns(1, seed=17)[0]
     step = _moved(a, 0.8 * tau, rng) - a
     b, c, d = a + step, a + 2 * step, a + 3 * step
-    memory = AssociativeMemory(seed=5)
+    memory = AssociativeMemory(CONFIG, seed=5)
     memory.store(a, ALL_KNOWN, focus_id=1)
     rb = memory.match(b, ALL_KNOWN, final_trial=True, focus_id=2)
     assert (rb.outcome, rb.address, len(memory.exemplars(0))) == (
@@ -297,7 +297,7 @@ def test_refinement_reaches_one_acceptance_radius_and_does_not_chain() -> None:
 
 def test_refinement_is_capped() -> None:
     x = _distinct_patterns(1, seed=18)[0]
-    memory = AssociativeMemory(MemoryConfig(refine_looks=3), seed=6)
+    memory = AssociativeMemory(MemoryConfig.for_mode("paper", refine_looks=3), seed=6)
     memory.store(x, ALL_KNOWN, focus_id=1)
     rng = np.random.default_rng(9)
     for focus in range(2, 12):
@@ -306,7 +306,7 @@ def test_refinement_is_capped() -> None:
 
 
 def test_empty_memory() -> None:
-    memory = AssociativeMemory()
+    memory = AssociativeMemory(CONFIG)
     q = np.full(FEATURE_DIM, 0.5)
     assert memory.size == 0
     assert memory.match(q, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
@@ -315,7 +315,7 @@ def test_empty_memory() -> None:
 
 def test_hundred_stored_objects_all_recalled() -> None:
     patterns = np.random.default_rng(21).random((100, FEATURE_DIM)).astype(np.float32)
-    memory = AssociativeMemory(seed=4)
+    memory = AssociativeMemory(CONFIG, seed=4)
     memory.store_many(patterns, np.ones((100, FEATURE_DIM), bool))
     rng = np.random.default_rng(22)
     results = [memory.match(_look(p, rng, 0.5), ALL_KNOWN) for p in patterns]
@@ -327,7 +327,7 @@ def test_same_seed_same_memory_other_seed_differs() -> None:
     x = _distinct_patterns(3, seed=19)
 
     def build(seed: int) -> AssociativeMemory:
-        memory = AssociativeMemory(seed=seed)
+        memory = AssociativeMemory(CONFIG, seed=seed)
         for p in x:
             memory.store(p, ALL_KNOWN)
         return memory
@@ -339,7 +339,7 @@ def test_same_seed_same_memory_other_seed_differs() -> None:
 
 
 def test_handle_store_and_match() -> None:
-    memory = AssociativeMemory(seed=5)
+    memory = AssociativeMemory(CONFIG, seed=5)
     x = _distinct_patterns(2, seed=20)
     replies = [memory.handle(MemoryRequest(i, MemoryOp.STORE, p, ALL_KNOWN, focus_id=i + 1))
                for i, p in enumerate(x)]
@@ -372,7 +372,7 @@ def test_table1_objects_with_their_weights() -> None:
 
     objects = [table1(0.83, 0.45, 0.72), table1(0.65, 0.43, 0.51),
                table1(0.56, 0.44, 0.47), table1(0.47, 0.44, 0.24)]
-    memory = AssociativeMemory(seed=3)
+    memory = AssociativeMemory(CONFIG, seed=3)
     for i in (0, 1, 3):
         memory.store(objects[i], ALL_KNOWN)
     for address, i in enumerate((0, 1, 3)):
@@ -396,7 +396,7 @@ def test_table1_objects_with_their_weights() -> None:
     (np.full(FEATURE_DIM, np.nan), ALL_KNOWN),
 ])
 def test_bad_patterns_are_refused(features: np.ndarray, known: np.ndarray) -> None:
-    memory = AssociativeMemory()
+    memory = AssociativeMemory(CONFIG)
     with pytest.raises(MessageError):
         memory.match(features, known)
     with pytest.raises(MessageError):
@@ -404,7 +404,7 @@ def test_bad_patterns_are_refused(features: np.ndarray, known: np.ndarray) -> No
 
 
 def test_nothing_known_cannot_be_stored_but_unknown_nan_is_fine() -> None:
-    memory = AssociativeMemory()
+    memory = AssociativeMemory(CONFIG)
     with pytest.raises(MessageError):
         memory.store(np.zeros(FEATURE_DIM), np.zeros(FEATURE_DIM, bool))
     q = np.full(FEATURE_DIM, 0.5)

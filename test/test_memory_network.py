@@ -18,7 +18,7 @@ from roger_memory.network import (
 )
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-CONFIG = MemoryConfig()
+CONFIG = MemoryConfig.for_mode("paper")  # these tests build paper-mode (11) looks
 
 
 def _net(looks: np.ndarray, known: np.ndarray, addresses: list[int]) -> AssociativeNetwork:
@@ -202,11 +202,11 @@ def test_student_t_noise_has_a_heavier_tail_than_a_gaussian() -> None:
 ])
 def test_config_rejects_bad_value_naming_field(field: str, value: object) -> None:
     with pytest.raises(ConfigError, match=field):
-        MemoryConfig(**{field: value})
+        MemoryConfig.for_mode("paper", **{field: value})
 
 
 def test_config_round_trips_through_dict() -> None:
-    cfg = MemoryConfig(identify_distance=2.5, veto=(0.5,) * FEATURE_DIM)
+    cfg = MemoryConfig.for_mode("paper", identify_distance=2.5, veto=(0.5,) * FEATURE_DIM)
     assert MemoryConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match="bogus"):
         MemoryConfig.from_dict({"bogus": 1})
@@ -221,7 +221,8 @@ def test_first_store_imports_nothing_new() -> None:
     script = (
         "import sys, numpy as np\n"
         "from roger_memory.memory import AssociativeMemory\n"
-        "m = AssociativeMemory(seed=0)\n"
+        "from roger_memory.config import MemoryConfig\n"
+        "m = AssociativeMemory(MemoryConfig.for_mode('paper'), seed=0)\n"
         "before = set(sys.modules)\n"
         "m.store(np.full(11, 0.5, np.float32), np.ones(11, bool))\n"
         "print(sorted(n for n in set(sys.modules) - before if n.startswith('torch')))\n")

@@ -11,12 +11,13 @@ import pytest
 import torch
 
 from roger_common.errors import MemoryFileError
-from roger_common.types import FEATURE_DIM, WEIGHT_INDEX, MatchOutcome
+from roger_common.types import FEATURE_DIM, WEIGHT_INDEX, MatchOutcome, feature_dim
 from roger_memory import persistence
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 
 ALL_KNOWN = np.ones(FEATURE_DIM, bool)
+PAPER = MemoryConfig.for_mode("paper")  # these tests build paper-mode (11) looks
 W_UNKNOWN = ALL_KNOWN.copy()
 W_UNKNOWN[WEIGHT_INDEX] = False
 PATTERNS = np.random.default_rng(31).random((4, FEATURE_DIM)).astype(np.float32)
@@ -31,7 +32,7 @@ def _named(path: Path, problem: str) -> str:
 
 
 def _memory(n: int, seed: int = 0) -> AssociativeMemory:
-    memory = AssociativeMemory(seed=seed)
+    memory = AssociativeMemory(PAPER, seed=seed)
     for p in PATTERNS[:n]:
         memory.store(p, ALL_KNOWN)
     return memory
@@ -132,7 +133,7 @@ def test_incompatible_files_are_refused(three, tmp_path: Path, monkeypatch) -> N
     with pytest.raises(MemoryFileError, match=_named(path, "format version 2")):
         AssociativeMemory.load(path)
     monkeypatch.undo()
-    monkeypatch.setattr(persistence, "FEATURE_NAMES", ("I1",) * FEATURE_DIM)
+    monkeypatch.setattr(persistence, "feature_names", lambda mode: ("I1",) * FEATURE_DIM)
     other = tmp_path / "other.bin"
     three.save(other)
     monkeypatch.undo()
@@ -143,7 +144,7 @@ def test_incompatible_files_are_refused(three, tmp_path: Path, monkeypatch) -> N
 def test_load_with_other_thresholds_is_allowed(three, tmp_path: Path) -> None:
     path = tmp_path / "ltm.bin"
     three.save(path)
-    strict = MemoryConfig(veto=(1e-6,) * FEATURE_DIM)
+    strict = MemoryConfig.for_mode("paper", veto=(1e-6,) * FEATURE_DIM)
     loaded = AssociativeMemory.load(path, strict)
     assert loaded.config == strict
     q = np.clip(PATTERNS[0] + 0.01, 0, 1)
@@ -164,8 +165,27 @@ def test_open_starts_empty_then_loads(three, tmp_path: Path) -> None:
 
 def test_empty_memory_round_trips(tmp_path: Path) -> None:
     path = tmp_path / "empty.bin"
-    AssociativeMemory(seed=4).save(path)
+    AssociativeMemory(PAPER, seed=4).save(path)
     loaded = AssociativeMemory.load(path)
     assert (loaded.size, loaded.seed) == (0, 4)
     assert loaded.store(PATTERNS[0], ALL_KNOWN) == 0
 
+
+
+def test_a_memory_of_one_feature_mode_is_refused_by_the_other(three, tmp_path: Path) -> None:
+    path = tmp_path / "paper.bin"
+    three.save(path)
+    with pytest.raises(MemoryFileError, match=_named(path, "paper-mode features")
+                       + ".*--features paper"):
+        AssociativeMemory.load(path, MemoryConfig.for_mode("extended"))
+    extended = AssociativeMemory(MemoryConfig.for_mode("extended"), seed=1)
+    extended.store(np.full(feature_dim("extended"), 0.5, np.float32),
+                   np.ones(feature_dim("extended"), bool))
+    other = tmp_path / "extended.bin"
+    extended.save(other)
+    with pytest.raises(MemoryFileError, match=_named(other, "extended-mode features")):
+        AssociativeMemory.load(other, PAPER)
+    back = AssociativeMemory.load(other)
+    assert back.config.features == "extended" and back.size == 1
+    # The file says its layout: the feature names of its mode.
+    assert persistence.load_snapshot(other).config["features"] == "extended"

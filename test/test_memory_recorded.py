@@ -15,15 +15,17 @@ import pytest
 import torch
 from conftest import REPO
 
-from roger_common.types import WEIGHT_INDEX, MatchOutcome
+from roger_common.types import WEIGHT_INDEX, FeatureMode, MatchOutcome, feature_dim
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
 from roger_memory.calibration import calibrate
 from roger_memory.config import (
+    CALIBRATED,
     CALIBRATED_FEATURE_SCALE,
     CALIBRATED_FEATURE_WEIGHT,
     CALIBRATED_IDENTIFY_DISTANCE,
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
+    MemoryConfig,
 )
 from roger_memory.memory import AssociativeMemory
 
@@ -43,7 +45,7 @@ def _replayed(world: str) -> tuple[list[ReplayScore], tuple[AssociativeMemory, .
     memories: list[AssociativeMemory] = []
 
     def make() -> AssociativeMemory:
-        memories.append(AssociativeMemory(seed=0))
+        memories.append(AssociativeMemory(MemoryConfig.for_mode("paper"), seed=0))
         return memories[-1]
 
     return replay(_queries(world), make), tuple(memories)
@@ -75,6 +77,26 @@ def test_the_shipped_calibration_is_what_the_recorded_looks_give() -> None:
     # intensity of a copy seen at another place varies 2-6 times more.
     assert np.all(cal.feature_scale >= cal.entry_scale)
     assert cal.feature_scale[2] > 5 * cal.entry_scale[2]
+
+
+def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_give() -> None:
+    """The extended mode's defaults are measured the same way, on its own recorded looks
+    (test/data/memory_queries_extended.csv.gz: no inspection look in it)."""
+    rows = read_csv(REPO / "test" / "data" / "memory_queries_extended.csv.gz")
+    assert "inspection" not in {q.world for q in rows}
+    assert all(len(q.features) == feature_dim("extended") for q in rows)
+    cal = calibrate(np.stack([q.features for q in rows]), np.stack([q.known for q in rows]),
+                    np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
+                    np.array([q.entry for q in rows]))
+    ext = CALIBRATED[FeatureMode.EXTENDED]
+    np.testing.assert_allclose(cal.feature_scale, ext.feature_scale, rtol=0.01, atol=5e-5)
+    assert cal.identify_distance == pytest.approx(ext.identify_distance, abs=0.01)
+    assert cal.noise_dof == pytest.approx(ext.noise_dof, abs=0.1)
+    np.testing.assert_allclose(cal.veto, ext.veto, rtol=0.01, atol=5e-4)
+    np.testing.assert_allclose(cal.feature_weight, ext.feature_weight, rtol=0.01, atol=2e-3)
+    # The paper's eleven keep their place and the config of each mode takes its own.
+    assert MemoryConfig.for_mode("extended").feature_scale == ext.feature_scale
+    assert MemoryConfig.for_mode("paper").feature_scale == CALIBRATED_FEATURE_SCALE
 
 
 def test_information_weights_follow_what_a_feature_tells_apart() -> None:

@@ -19,7 +19,7 @@ from perception_synth import (
     table1_objects,
 )
 
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX, HapticReading
+from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX, HapticReading, feature_dim
 from roger_perception.config import PerceptionConfig
 from roger_perception.features import (
     assemble,
@@ -222,7 +222,8 @@ def test_features_lie_in_the_unit_interval_and_repeat_exactly() -> None:
     b = Perception(seed=7).process(frame)
     assert len(a) == 3
     for ra, rb in zip(a, b, strict=True):
-        assert ra.features.dtype == np.float32 and ra.features.shape == (FEATURE_DIM,)
+        dim = feature_dim(Perception().config.features)
+        assert ra.features.dtype == np.float32 and ra.features.shape == (dim,)
         assert np.all((ra.features >= 0.0) & (ra.features <= 1.0))
         np.testing.assert_array_equal(ra.features, rb.features)
         assert ra.position == rb.position

@@ -28,13 +28,25 @@ import numpy as np
 
 from roger_attention.config import SpatialMapConfig
 from roger_common.geometry import as_point
-from roger_common.types import FEATURE_NAMES, WEIGHT_INDEX, Roi
+from roger_common.types import (
+    FEATURE_NAMES,
+    TOUCH_FEATURE_NAMES,
+    Roi,
+    feature_names,
+    mode_of_dim,
+)
 
 Position = tuple[float, float, float]
 #: Says whether a robot-frame position is currently inside the retina.
 VisibleFn = Callable[[Position], bool]
 #: Index of the size feature D (eq. 4) in a ROI's features.
 SIZE_INDEX = FEATURE_NAMES.index("D")
+
+
+def touch_indices(n: int) -> list[int]:
+    """Indices of the features touch measures in a feature vector of ``n`` entries."""
+    names = feature_names(mode_of_dim(n))
+    return [names.index(t) for t in TOUCH_FEATURE_NAMES if t in names]
 #: How many of the latest entry-to-ROI distances the jitter quantile is taken over.
 JITTER_WINDOW = 256
 
@@ -374,7 +386,10 @@ class SpatialMap:
         known = np.asarray(roi.known, bool)
         if hold:
             take = known & ~entry.known
-            take[WEIGHT_INDEX] = known[WEIGHT_INDEX]
+            # What touch measured (W, and the tactile shape in the extended mode) is the
+            # hand's, not the window's pixels.
+            touch = touch_indices(len(known))
+            take[touch] = known[touch]
         else:
             take = known
         entry.features[take] = np.asarray(roi.features, np.float32)[take]

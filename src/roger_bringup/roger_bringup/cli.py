@@ -21,6 +21,15 @@ DEMO_WORLD = Path("worlds/inspection.yaml")
 COMPLETE_MAX = 2000
 
 
+def _add_features_arg(p: argparse.ArgumentParser) -> None:
+    from roger_common.types import DEFAULT_FEATURE_MODE, FeatureMode
+    p.add_argument("--features", choices=[m.value for m in FeatureMode],
+                   default=DEFAULT_FEATURE_MODE.value,
+                   help="feature mode of perception and memory: paper (the eleven features "
+                        "of equations 1-5) or extended (those plus shape from stereo and "
+                        "touch, docs/perception.md); default %(default)s")
+
+
 def _add_run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")
     p.add_argument("--policy", choices=("straightforward", "qlearning"),
@@ -41,6 +50,7 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
                    help="long-term memory file (default OUT/memory.pt); loaded if it exists")
     p.add_argument("--no-learn", action="store_true",
                    help="run the Q-table without updating it")
+    _add_features_arg(p)
     p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
                    help="a standard ROS 2 parameters file handed to every node (e.g. a copy "
                         "of docs/params_example.yaml); roger run's own options (world, "
@@ -68,6 +78,7 @@ def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         world=args.world, out=args.out or Path("runs") / args.policy, policy=args.policy,
         cycles=cycles, until_complete=args.until_complete, stable_cycles=args.stable_cycles,
         seed=args.seed, qtable=args.qtable, memory=args.memory, learn=not args.no_learn,
+        features=args.features,
         image_size=args.image_size, realtime=args.realtime or None, gui=args.gui or None,
         params_file=args.params_file,
         domain_id=args.domain_id, timeout_s=args.timeout, progress=not args.quiet,
@@ -119,7 +130,7 @@ def _training_worlds(files: list[Path] | None, spec: RandomWorlds | None,
 
 
 def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: Path,
-           graph: bool, quiet: bool) -> dict:
+           graph: bool, quiet: bool, features: str) -> dict:
     """Q-learning over ``worlds`` x ``seeds`` into ``out`` (in process unless ``graph``)."""
     import time
 
@@ -131,7 +142,7 @@ def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: P
         def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
             return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
                                         cycles=cycles, seed=seed, qtable=qtable,
-                                        progress=not quiet))
+                                        features=features, progress=not quiet))
     else:
         from roger_experiments.core_loop import run_core
         from roger_sim.world import load_world
@@ -140,7 +151,7 @@ def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: P
             t0 = time.monotonic()
             # The loop saves the Q-table it learnt to ``qtable`` when it closes.
             recorder, _ = run_core(load_world(world), "qlearning", cycles, seed=seed,
-                                   out=run_dir, qtable_path=qtable)
+                                   out=run_dir, qtable_path=qtable, features=features)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
     if (out / "qtable.json").exists():
@@ -172,7 +183,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
               f"{args.cycles} cycles each, in process -> {train_out}")
         files, made = _training_worlds(None, spec, train_out / "worlds")
         _train(files, made, list(range(args.train_seeds)), args.cycles, train_out,
-               graph=False, quiet=args.quiet)
+               graph=False, quiet=args.quiet, features=args.features)
         qtable, origin = train_out / "qtable.json", "trained now by `roger train` (in process)"
     trained = TrainedTable.of(qtable, world, origin)
     if trained.world_seen:
@@ -189,7 +200,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                    seed=seed, out=run_dir,
                                    stop_when_complete=stable if complete else 0,
                                    qtable_path=qtable if policy == "qlearning" else None,
-                                   learn=False)
+                                   learn=False, features=args.features)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
     else:
@@ -201,7 +212,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 cycles=None if complete else args.cycles, until_complete=complete,
                 stable_cycles=stable, max_cycles=COMPLETE_MAX, seed=seed,
                 qtable=qtable if policy == "qlearning" else None, learn=False,
-                progress=not args.quiet))
+                features=args.features, progress=not args.quiet))
 
     def run_one(policy: str, seed: int, run_dir: Path) -> dict:
         return run(policy, seed, run_dir, False)
@@ -237,7 +248,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     if not worlds:
         raise RogerError("roger train: no training world (give --worlds or --random-worlds)")
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    summary = _train(worlds, made, seeds, args.cycles, args.out, args.graph, args.quiet)
+    summary = _train(worlds, made, seeds, args.cycles, args.out, args.graph, args.quiet,
+                     args.features)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("q", "worlds")},
                      indent=2))
     print(f"Q-table: {args.out / 'qtable.json'}; Figure 6: {args.out / 'td_errors.png'}; "
@@ -248,11 +260,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_features(args: argparse.Namespace) -> int:
     """``roger features``: do the features of one object repeat across the robot's looks?"""
     from roger_experiments import feature_report
+    from roger_memory.config import MemoryConfig
+    from roger_perception.config import PerceptionConfig
     from roger_sim.world import load_world
 
     result = feature_report.write(
         feature_report.collect_looks(load_world(args.world), seed=args.seed,
-                                     noise_looks=args.noise_looks), args.out)
+                                     perception_config=PerceptionConfig(features=args.features),
+                                     noise_looks=args.noise_looks), args.out,
+        memory_config=MemoryConfig.for_mode(args.features))
     print(feature_report.markdown(result))
     print(f"written: {args.out / 'features.md'}, features.json, features.png, looks.csv")
     return 0
@@ -302,6 +318,7 @@ def main(argv: list[str] | None = None) -> None:
                                 "unmapped entry; at most 2000 cycles) for the report's "
                                 "'every object visited'; 0 skips those runs")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
+        _add_features_arg(p_cmp)
         p_cmp.set_defaults(func=cmd_compare)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
     p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")
@@ -328,6 +345,7 @@ def main(argv: list[str] | None = None) -> None:
     p_train.add_argument("--graph", action="store_true",
                          help="train through the multi-process graph instead of in process")
     p_train.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_features_arg(p_train)
     p_train.set_defaults(func=cmd_train)
     p_feat = sub.add_parser("features", help="do the features repeat? within- vs "
                             "between-category spread of every feature, ROI purity")
@@ -338,6 +356,7 @@ def main(argv: list[str] | None = None) -> None:
     p_feat.add_argument("--noise-looks", type=int, default=3,
                         help="looks at each place at the end, one fixation with fresh pixel "
                         "noise: the sensor-noise spread and each feature's ceiling (0: none)")
+    _add_features_arg(p_feat)
     p_feat.set_defaults(func=cmd_features)
     p_t1 = sub.add_parser("table1", help="the paper's Table 1: the four boxes' perceived I, D, W")
     p_t1.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")

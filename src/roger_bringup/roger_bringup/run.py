@@ -30,12 +30,13 @@ from roger_bringup.orchestrator import (
     shm_files,
 )
 from roger_common.dds import PROFILE_ENV
-from roger_common.errors import ConfigError, RogerError
+from roger_common.errors import ConfigError, MemoryFileError, RogerError
 from roger_common.liveness import HANG_TIMEOUT_S, SETUP_EXIT
 from roger_common.ros_node import HeartbeatWatch
+from roger_common.types import DEFAULT_FEATURE_MODE, FeatureMode
 from roger_experiments.evaluation import CycleRow, RunRecorder
 from roger_experiments.progress import ProgressBar, counters_info
-from roger_memory.persistence import load_snapshot
+from roger_memory.persistence import load_snapshot, snapshot_mode
 from roger_sim.world import load_world
 
 #: Wall seconds the graph may take to come up.
@@ -75,6 +76,8 @@ class RunOptions:
     qtable: Path | None = None
     memory: Path | None = None
     learn: bool = True
+    #: Feature mode of perception and memory (``roger_common.types.FeatureMode``).
+    features: str = DEFAULT_FEATURE_MODE.value
     #: Simulator shortcuts: None leaves the value to ``params_file`` (or the default).
     image_size: int | None = None
     realtime: bool | None = None
@@ -146,8 +149,8 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
     values: dict[str, dict[str, Any]] = {
         "sim": dict(world=world, seed=opt.seed, image_size=opt.image_size,
                     realtime=opt.realtime, gui=opt.gui),
-        "perception": {},
-        "memory": dict(memory_file=memory, seed=opt.seed),
+        "perception": dict(features=opt.features),
+        "memory": dict(memory_file=memory, seed=opt.seed, features=opt.features),
         "attention": dict(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
                           stop_when_complete=opt.stable_cycles if opt.until_complete else 0,
                           qtable_file=qtable, learn=opt.learn, wait_for_observers=observers,
@@ -191,14 +194,21 @@ class ResumingRecorder(RunRecorder):
         super().add(row)
 
 
-def check_files(memory: Path, qtable: Path) -> None:
-    """Refuse a corrupt memory or Q-table file before anything starts (one line each).
+def check_files(memory: Path, qtable: Path, features: str = DEFAULT_FEATURE_MODE.value
+                ) -> None:
+    """Refuse a corrupt memory or Q-table file, or a memory of another feature mode,
+    before anything starts (one line each).
 
     Raises:
         MemoryFileError: Naming the file and what is wrong with it.
     """
     if memory.exists():
-        load_snapshot(memory)
+        saved = snapshot_mode(load_snapshot(memory).config)
+        if saved is not FeatureMode.parse(features):
+            raise MemoryFileError(
+                f"{memory}: a memory of {saved.value}-mode features, but this run uses the "
+                f"{FeatureMode.parse(features).value} mode; run with --features "
+                f"{saved.value}, or give another --memory file")
     if qtable.exists():
         QTable.load(qtable)
 
@@ -225,7 +235,7 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     memory = (opt.memory or out / "memory.pt").resolve()
     qtable = (opt.qtable or out / "qtable.json").resolve()
-    check_files(memory, qtable)
+    check_files(memory, qtable, opt.features)
     if opt.record is not None:
         from roger_bringup.record import check_target
         check_target(opt.record)  # an existing bag is refused before anything starts
@@ -239,7 +249,7 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
         if key in env:
             os.environ.setdefault(key, env[key])
     meta = {"policy": opt.policy, "world": str(opt.world), "seed": opt.seed,
-            "domain_id": domain_id}
+            "features": FeatureMode.parse(opt.features).value, "domain_id": domain_id}
     recorder = ResumingRecorder(out, list(world.objects), meta, memory_file=memory)
     budget = opt.budget()
     timeout = opt.timeout_s if opt.timeout_s is not None else 120.0 + 3.0 * budget

@@ -13,17 +13,17 @@ import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from roger_common.errors import MessageError
 from roger_common.geometry import eye_pose, quaternion_from_rotation
 from roger_common.types import (
-    FEATURE_DIM,
     Action,
     CameraModel,
     EyePose,
+    FeatureMode,
     Goal,
     HapticReading,
     MatchOutcome,
@@ -32,6 +32,9 @@ from roger_common.types import (
     MemoryRequest,
     Roi,
     StereoFrame,
+    TactileContact,
+    feature_dim,
+    mode_of_dim,
 )
 from roger_interfaces.msg import ActionGoal, MemoryResult, RoiArray, StereoGeometry
 from roger_interfaces.msg import HapticReading as HapticReadingMsg
@@ -187,27 +190,49 @@ def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
 
 # -- touch -------------------------------------------------------------------------------
 def haptic_msg(reading: HapticReading, goal_id: int, stamp: float) -> HapticReadingMsg:
-    """A core HapticReading as a message."""
+    """A core HapticReading as a message (its tactile contacts as three parallel arrays)."""
+    contacts = reading.contacts
     return HapticReadingMsg(header=header(stamp), goal_id=goal_id, arm=reading.arm,
                             contact=reading.contact, position=point(reading.position),
-                            weight=float(reading.weight))
+                            weight=float(reading.weight),
+                            contact_points=[point(c.point) for c in contacts],
+                            contact_normals=[Vector3(x=float(c.normal[0]), y=float(c.normal[1]),
+                                                     z=float(c.normal[2])) for c in contacts],
+                            probe_offsets=[float(v) for c in contacts for v in c.probe])
 
 
 def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
     """A haptic message as a core reading.
 
     A reading without contact (the hand closed on nothing) carries NaN weight and is kept
-    as it is. Raises MessageError on a contact with a NaN or negative weight or position.
+    as it is. Raises MessageError on a contact with a NaN or negative weight or position,
+    and on malformed tactile contacts: array lengths that do not match, values that are
+    not finite, normals that are not unit vectors, contacts on a reading without contact.
     """
+    what = f"haptic reading of goal {msg.goal_id}"
+    points = [point_tuple(p) for p in msg.contact_points]
+    normals = [(n.x, n.y, n.z) for n in msg.contact_normals]
+    offsets = [float(v) for v in msg.probe_offsets]
+    if len(normals) != len(points) or len(offsets) != 2 * len(points):
+        raise MessageError(f"{what}: {len(points)} contact points, {len(normals)} normals and "
+                           f"{len(offsets)} probe offsets (expected 2 per contact)")
+    if not all(math.isfinite(v) for v in [*(c for p in points + normals for c in p), *offsets]):
+        raise MessageError(f"{what}: tactile contacts not finite")
+    if any(abs(math.hypot(*n) - 1.0) > 1e-3 for n in normals):
+        raise MessageError(f"{what}: a contact normal is not a unit vector")
     if not msg.contact:
+        if points:
+            raise MessageError(f"{what}: {len(points)} tactile contacts but contact is false")
         return HapticReading(arm=int(msg.arm), contact=False,
                              position=point_tuple(msg.position), weight=float(msg.weight))
     if not math.isfinite(msg.weight) or msg.weight < 0:
-        raise MessageError(f"haptic reading of goal {msg.goal_id}: weight {msg.weight} unusable")
+        raise MessageError(f"{what}: weight {msg.weight} unusable")
     if not all(math.isfinite(v) for v in point_tuple(msg.position)):
-        raise MessageError(f"haptic reading of goal {msg.goal_id}: position not finite")
-    return HapticReading(arm=int(msg.arm), contact=bool(msg.contact),
-                         position=point_tuple(msg.position), weight=float(msg.weight))
+        raise MessageError(f"{what}: position not finite")
+    contacts = tuple(TactileContact(point=p, normal=n, probe=(offsets[2 * i], offsets[2 * i + 1]))
+                     for i, (p, n) in enumerate(zip(points, normals, strict=True)))
+    return HapticReading(arm=int(msg.arm), contact=True, position=point_tuple(msg.position),
+                         weight=float(msg.weight), contacts=contacts)
 
 
 # -- regions of interest -----------------------------------------------------------------
@@ -223,13 +248,19 @@ def roi_to_msg(roi: Roi) -> RoiMsg:
                   size_m=float(roi.size_m))
 
 
-def msg_to_roi(msg: RoiMsg) -> Roi:
-    """A Roi message as a core Roi. Raises MessageError on a malformed one."""
+def msg_to_roi(msg: RoiMsg, mode: FeatureMode | str = FeatureMode.PAPER) -> Roi:
+    """A Roi message as a core Roi. Raises MessageError on a malformed one.
+
+    Args:
+        msg: The message.
+        mode: The feature mode of its array (``RoiArray.feature_mode``).
+    """
     features = np.asarray(msg.features, dtype=np.float32)
     known = np.asarray(msg.known, dtype=bool)
-    if features.shape != (FEATURE_DIM,) or known.shape != (FEATURE_DIM,):
+    n = feature_dim(mode)
+    if features.shape != (n,) or known.shape != (n,):
         raise MessageError(f"ROI {msg.id}: {features.size} features and {known.size} known "
-                           f"flags, expected {FEATURE_DIM} each")
+                           f"flags, expected {n} each ({FeatureMode.parse(mode).value} mode)")
     if not np.all(np.isfinite(features)) or features.min() < -1e-6 or features.max() > 1 + 1e-6:
         raise MessageError(f"ROI {msg.id}: features outside [0, 1] or NaN")
     pos = point_tuple(msg.position)
@@ -242,10 +273,18 @@ def msg_to_roi(msg: RoiMsg) -> Roi:
                cut=bool(msg.cut), size_m=float(msg.size_m))
 
 
-def rois_to_msg(rois: list[Roi], stamp: float, goal_id: int) -> RoiArray:
-    """All ROIs of one stereo pair."""
+def rois_to_msg(rois: list[Roi], stamp: float, goal_id: int,
+                mode: FeatureMode | str = FeatureMode.PAPER) -> RoiArray:
+    """All ROIs of one stereo pair, whose feature vectors are of ``mode``."""
     return RoiArray(header=header(stamp), goal_id=int(goal_id),
+                    feature_mode=FeatureMode.parse(mode).value,
                     rois=[roi_to_msg(r) for r in rois])
+
+
+def roi_array_mode(msg: RoiArray) -> FeatureMode:
+    """The feature mode a RoiArray says it carries (empty: the paper's, as before the
+    modes). Raises MessageError for an unknown name."""
+    return _mode(msg.feature_mode, f"ROI array of goal {msg.goal_id}")
 
 
 def msg_to_rois(msg: RoiArray) -> list[Roi]:
@@ -253,7 +292,15 @@ def msg_to_rois(msg: RoiArray) -> list[Roi]:
     ids = [int(r.id) for r in msg.rois]
     if len(set(ids)) != len(ids):
         raise MessageError(f"ROI array of goal {msg.goal_id}: ROI ids repeat ({ids})")
-    return [msg_to_roi(r) for r in msg.rois]
+    mode = roi_array_mode(msg)
+    return [msg_to_roi(r, mode) for r in msg.rois]
+
+
+def _mode(name: str, what: str) -> FeatureMode:
+    try:
+        return FeatureMode.parse(name or FeatureMode.PAPER.value)
+    except ValueError as exc:
+        raise MessageError(f"{what}: {exc}") from None
 
 
 # -- the associative memory --------------------------------------------------------------
@@ -265,9 +312,11 @@ def msg_to_request(msg: MemoryRequestMsg) -> MemoryRequest:
         raise MessageError(f"request {msg.request_id}: unknown op {msg.op} (0 match, 1 store)")
     features = np.asarray(msg.features, dtype=np.float32)
     known = np.asarray(msg.known, dtype=bool)
-    if features.shape != (FEATURE_DIM,) or known.shape != (FEATURE_DIM,):
+    mode = _mode(msg.feature_mode, f"request {msg.request_id}")
+    n = feature_dim(mode)
+    if features.shape != (n,) or known.shape != (n,):
         raise MessageError(f"request {msg.request_id}: {features.size} features and "
-                           f"{known.size} known flags, expected {FEATURE_DIM} each")
+                           f"{known.size} known flags, expected {n} each ({mode.value} mode)")
     if not np.all(np.isfinite(features[known])):
         raise MessageError(f"request {msg.request_id}: NaN or infinite features")
     if features[known].size and (features[known].min() < -1e-6
@@ -282,6 +331,7 @@ def request_to_msg(req: MemoryRequest, stamp: float) -> MemoryRequestMsg:
     """A core MemoryRequest as a message."""
     return MemoryRequestMsg(header=Header(stamp=seconds_to_time(stamp)),
                             request_id=int(req.request_id), op=int(req.op),
+                            feature_mode=mode_of_dim(len(req.features)).value,
                             features=[float(v) for v in req.features],
                             known=[bool(k) for k in req.known], final_trial=req.final_trial,
                             focus_id=int(req.focus_id))

@@ -10,7 +10,7 @@ x forward, y to the left, z up; metres, kilograms, radians, seconds of simulated
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntEnum
+from enum import Enum, IntEnum
 
 import numpy as np
 
@@ -29,6 +29,63 @@ FEATURE_DIM: int = len(FEATURE_NAMES)
 WEIGHT_INDEX: int = FEATURE_NAMES.index("W")
 #: Index of the size feature, unknown when the silhouette is cut (retina edge, occluder).
 SIZE_INDEX: int = FEATURE_NAMES.index("D")
+
+#: Shape evidence beyond equations 1-5 (docs/perception.md, "Extended features"), appended
+#: after W so that the paper's eleven keep their indices. From the retina, the stereo
+#: position and the known camera geometry, in metres of the ground frame: H the height of
+#: the object's top, R the silhouette's height over its width, E how far the silhouette
+#: reaches above the top, G the shading of its surface (planar faces are flat, curved ones
+#: shade smoothly). From touch (unknown, like W, until a haptic improvement): TH the height
+#: of the top the hand touched, TC the top's curvature (how far the probe touches drop
+#: below the first), TR its ridge (how unequal the drops are in the probe directions).
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "R", "E", "G", "TH", "TC", "TR")
+#: The features a haptic improvement measures (unknown before one): W and touch's shape.
+TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TC", "TR")
+
+
+class FeatureMode(str, Enum):
+    """Which features perception computes and the memory compares.
+
+    PAPER: the eleven of equations 1-5 (FEATURE_NAMES), the reproduction mode.
+    EXTENDED: those eleven, then SHAPE_FEATURE_NAMES (the documented extension).
+    """
+
+    PAPER = "paper"
+    EXTENDED = "extended"
+
+    @classmethod
+    def parse(cls, value: str | FeatureMode) -> FeatureMode:
+        """The mode named ``value``; ValueError naming the choices otherwise."""
+        try:
+            return cls(value)
+        except ValueError:
+            raise ValueError(f"feature mode {value!r}: expected one of "
+                             f"{[m.value for m in cls]}") from None
+
+
+#: The mode a run uses unless told otherwise.
+DEFAULT_FEATURE_MODE: FeatureMode = FeatureMode.EXTENDED
+
+
+def feature_names(mode: FeatureMode | str) -> tuple[str, ...]:
+    """The feature vector's layout in ``mode``: the paper's eleven, then the extension."""
+    if FeatureMode.parse(mode) is FeatureMode.PAPER:
+        return FEATURE_NAMES
+    return FEATURE_NAMES + SHAPE_FEATURE_NAMES
+
+
+def feature_dim(mode: FeatureMode | str) -> int:
+    """Length of the feature vector in ``mode``."""
+    return len(feature_names(mode))
+
+
+def mode_of_dim(n: int) -> FeatureMode:
+    """The mode whose feature vector has ``n`` entries; ValueError for any other length."""
+    for mode in FeatureMode:
+        if feature_dim(mode) == n:
+            return mode
+    raise ValueError(f"{n} features: expected {[feature_dim(m) for m in FeatureMode]} "
+                     f"({[m.value for m in FeatureMode]})")
 
 
 class Action(IntEnum):
@@ -90,12 +147,34 @@ class HapticReading:
         contact: True when the hand touched an object.
         position: Where the hand touched it, robot frame, metres.
         weight: Measured weight in kilograms (noisy); NaN without contact.
+        contacts: Every touch of the hand's tactile sensor in this improvement, in order:
+            the first touch (at ``position``) and the probe touches around it, as a
+            tactile sensor reports them (contact point and the surface normal there).
+            Empty when the hand touched nothing.
     """
 
     arm: int
     contact: bool
     position: tuple[float, float, float]
     weight: float
+    contacts: tuple[TactileContact, ...] = ()
+
+
+@dataclass(frozen=True)
+class TactileContact:
+    """One touch of the hand's tactile sensor.
+
+    Attributes:
+        point: The contact point on the touched surface, robot frame, metres.
+        normal: Unit normal of the touched surface there, pointing out of it (up, on a
+            top face), robot frame.
+        probe: Horizontal offset of the hand from the first touch when it touched,
+            robot frame (dx, dy), metres; (0, 0) for the first touch.
+    """
+
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    probe: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)

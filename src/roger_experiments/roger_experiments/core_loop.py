@@ -20,6 +20,7 @@ import numpy as np
 from roger_attention.config import AttentionConfig
 from roger_attention.controller import AttentionController, CycleRecord
 from roger_attention.policies import Policy, make_policy
+from roger_common.errors import ConfigError
 from roger_common.types import Action, ControllerReport, MatchResult, StereoFrame, WorldSpec
 from roger_experiments.evaluation import CycleRow, RunRecorder, object_under_window
 from roger_memory.config import MemoryConfig
@@ -57,6 +58,12 @@ class CoreLoop:
     agent: Policy | None = None
 
     def __post_init__(self) -> None:
+        mode = self.perception_config.features
+        wanted = self.memory.config.features if self.memory is not None \
+            else self.memory_config.features
+        if mode != wanted:
+            raise ConfigError(f"perception computes {mode}-mode features but the memory "
+                              f"compares {wanted}-mode ones: give both one feature mode")
         cfg = self.attention_config or AttentionConfig(policy=self.policy)
         self.sim = Simulator(self.world, self.sim_config, seed=self.seed)
         self.perception = Perception(self.perception_config)
@@ -176,18 +183,27 @@ def row_from_record(record: CycleRecord, true_object: str | None, sim_time: floa
 
 def run_core(world: WorldSpec, policy: str, cycles: int, seed: int = 0,
              out: Path | None = None, stop_when_complete: int = 0,
+             features: str | None = None,
              **kwargs: Any) -> tuple[RunRecorder | None, CoreLoop]:
     """Run ``cycles`` control cycles in process (fewer when ``stop_when_complete`` ends the
     run by the robot's completion rule); record them to ``out`` if given.
 
+    ``features`` (a FeatureMode name) sets the mode of perception and memory, with each
+    one's calibrated defaults (give ``perception_config``/``memory_config`` instead for
+    other values).
+
     Returns:
         The recorder (None without ``out``) and the loop (for its counters and map).
     """
+    if features is not None:
+        kwargs.setdefault("perception_config", PerceptionConfig(features=features))
+        kwargs.setdefault("memory_config", MemoryConfig.for_mode(features))
     loop = CoreLoop(world, policy=policy, seed=seed, **kwargs)
     recorder = None
     if out is not None:
         recorder = RunRecorder(out, list(world.objects),
-                               {"policy": policy, "world": world.source, "seed": seed})
+                               {"policy": policy, "world": world.source, "seed": seed,
+                                "features": loop.perception_config.features})
     try:
         for record in loop.cycles(cycles, stop_when_complete=stop_when_complete):
             seen = loop.true_object(record)

@@ -16,7 +16,7 @@ report gives the within-object spread (the pooled standard deviation of the look
 object around their mean), the spread between categories (the standard deviation of the
 category means) and their ratio, and the spread between copies of one category standing at
 other places (view dependence: what a repeat of a category must be recognised through);
-over all eleven features, the distance between two looks
+over all the features, the distance between two looks
 of one object against the distance between the two nearest categories (RMS over the
 features known in both, the memory's distance); the ROI purity and merges; and where the
 ROIs are placed against the footprint centres (positions). From the looks of step 4, per
@@ -25,6 +25,11 @@ spread between categories over it, the ratio the feature would reach if one obje
 differed by sensor noise alone and nothing else (view, shading, segmentation). A feature
 whose ceiling is under the target cannot reach it by any change of the view it is taken
 from; only a less noisy measurement (or sensor) can lift it.
+
+The features are those of the looks' mode (``roger_common.types.FeatureMode``): the paper's
+eleven, or those and the extended shape features (``feature_names``). A feature that no
+look measured (the touch features without a haptic improvement) is reported unknown, NaN
+in features.json.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import csv
 import itertools
 import json
 import math
+import warnings
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -47,12 +53,16 @@ from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
 from roger_common.types import (
     FEATURE_NAMES,
+    SHAPE_FEATURE_NAMES,
     WEIGHT_INDEX,
     Action,
+    FeatureMode,
     Goal,
     Roi,
     StereoFrame,
     WorldSpec,
+    feature_names,
+    mode_of_dim,
 )
 from roger_memory.calibration import rms_z
 from roger_memory.config import MemoryConfig
@@ -103,11 +113,39 @@ class Look:
 
 @dataclass
 class LookLog:
-    """Every look of a world, and what it took."""
+    """Every look of a world, and what it took.
+
+    Attributes:
+        mode: Feature mode of the looks (``collect_looks`` sets it); None: the length of
+            the looks' feature vectors says (``looks_mode``).
+    """
 
     world: WorldSpec
     looks: list[Look] = field(default_factory=list)
     frames: int = 0
+    mode: FeatureMode | None = None
+
+    @property
+    def feature_mode(self) -> FeatureMode:
+        """The looks' feature mode."""
+        return self.mode if self.mode is not None else looks_mode(self.looks)
+
+
+def looks_mode(looks: Iterable[Look]) -> FeatureMode:
+    """The feature mode of ``looks``, from the length of their feature vectors.
+
+    Raises:
+        ValueError: The looks' vectors differ in length or have no mode's length.
+    """
+    dims = {len(lk.roi.features) for lk in looks}
+    if len(dims) > 1:
+        raise ValueError(f"looks of several feature lengths {sorted(dims)}: one mode a report")
+    # No look: nothing to lay out; the paper's eleven keep the tables' old shape.
+    return mode_of_dim(dims.pop()) if dims else FeatureMode.PAPER
+
+
+def _layout(looks: Iterable[Look], names: tuple[str, ...] | None) -> tuple[str, ...]:
+    return names if names is not None else feature_names(looks_mode(looks))
 
 
 def label_shares(frame: StereoFrame, roi_labels: np.ndarray, roi_id: int
@@ -139,9 +177,10 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
                           f"{noise_looks}")
     att = attention_config or AttentionConfig()
     sim = Simulator(world, sim_config or SimConfig(), seed=seed)
-    perception = Perception(perception_config or PerceptionConfig())
+    perception_config = perception_config or PerceptionConfig()
+    perception = Perception(perception_config)
     smap = SpatialMap(att.spatial_map)
-    log = LookLog(world)
+    log = LookLog(world, mode=perception_config.feature_mode)
     goal_id = 0
 
     def look(action: Action, target: tuple[float, float, float], stage: str,
@@ -203,17 +242,25 @@ def _deviations(x: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return mean, sq, np.maximum(cnt - 1, 0)
 
 
-def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
+def feature_stats(looks: Iterable[Look], world: WorldSpec,
+                  names: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Within-object and between-category spread of every feature, look distances.
 
-    Only pure looks (PURE_SHARE) of an object count.
+    Only pure looks (PURE_SHARE) of an object count. A feature no pure look measured has
+    every spread and ratio NaN (unknown, not "no spread").
+
+    Args:
+        names: The features' layout (None: that of the looks' mode).
     """
+    looks = list(looks)
+    names = _layout(looks, names)
     category = {o.name: o.category() for o in world.objects}
     by_obj: dict[str, list[Look]] = defaultdict(list)
     for lk in looks:
         if lk.obj is not None and lk.purity >= PURE_SHARE:
             by_obj[lk.obj].append(lk)
-    n = len(FEATURE_NAMES)
+    n = len(names)
+    measured = np.zeros(n, bool)
     within_sq, within_n = np.zeros(n), np.zeros(n)
     obj_mean: dict[str, np.ndarray] = {}
     obj_known: dict[str, np.ndarray] = {}
@@ -221,17 +268,21 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
         x, k = _stacked(lks)
         mean, sq, dof = _deviations(x, k)
         obj_mean[name], obj_known[name] = mean, k.sum(axis=0) > 0
+        measured |= obj_known[name]
         within_sq += sq
         within_n += dof
-    within = np.sqrt(within_sq / np.maximum(within_n, 1))
+    within = np.where(measured, np.sqrt(within_sq / np.maximum(within_n, 1)), np.nan)
     cats: dict[Any, list[str]] = defaultdict(list)
     for name in obj_mean:
         cats[category[name]].append(name)
-    cat_mean = {c: np.nanmean(np.stack([obj_mean[o] for o in names]), axis=0)
-                for c, names in cats.items()}
-    means = np.stack(list(cat_mean.values())) if cat_mean else np.zeros((0, n))
-    between = np.nanstd(means, axis=0, ddof=1) if len(means) > 1 else np.full(n, np.nan)
-    copies, copy_pairs = _copy_spread(cats, obj_mean, obj_known, cat_mean)
+    with warnings.catch_warnings():
+        # A feature no copy of a category measured has a NaN mean (an empty slice).
+        warnings.simplefilter("ignore", RuntimeWarning)
+        cat_mean = {c: np.nanmean(np.stack([obj_mean[o] for o in objs]), axis=0)
+                    for c, objs in cats.items()}
+        means = np.stack(list(cat_mean.values())) if cat_mean else np.zeros((0, n))
+        between = np.nanstd(means, axis=0, ddof=1) if len(means) > 1 else np.full(n, np.nan)
+    copies, copy_pairs = _copy_spread(cats, obj_mean, obj_known, cat_mean, n)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = between / within
         ratio_copies = between / copies
@@ -244,7 +295,7 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     nearest = min(cat_d) if cat_d else (math.nan, None, None)
     pairs_a = np.asarray([p for p in pairs if math.isfinite(p)])
     return {
-        "features": list(FEATURE_NAMES),
+        "features": list(names),
         "within": within.tolist(), "between": between.tolist(), "ratio": ratio.tolist(),
         "objects": len(by_obj), "categories": len(cat_mean),
         "looks": int(sum(len(v) for v in by_obj.values())),
@@ -260,7 +311,7 @@ def feature_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
 
 
 def _copy_spread(cats: dict[Any, list[str]], obj_mean: dict[str, np.ndarray],
-                 obj_known: dict[str, np.ndarray], cat_mean: dict[Any, np.ndarray]
+                 obj_known: dict[str, np.ndarray], cat_mean: dict[Any, np.ndarray], n: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """How far copies of one category, standing at other places, read apart.
 
@@ -272,7 +323,6 @@ def _copy_spread(cats: dict[Any, list[str]], obj_mean: dict[str, np.ndarray],
     between categories, no threshold on that feature tells "another copy" from "another
     category" (docs/perception.md, "View dependence").
     """
-    n = len(FEATURE_NAMES)
     sq, dof = np.zeros(n), np.zeros(n)
     pairs = []
     for c, names in cats.items():
@@ -301,14 +351,17 @@ def noise_stats(looks: Iterable[Look], between: Iterable[float]) -> dict[str, An
 
     Args:
         looks: Looks of the NOISE_STAGE (others are ignored).
-        between: The spread between categories per feature (``feature_stats``).
+        between: The spread between categories per feature (``feature_stats``); its
+            length gives the features' mode.
     """
+    between = np.asarray(list(between), float)
+    names = feature_names(mode_of_dim(len(between)))
     by_place: dict[int, list[Look]] = defaultdict(list)
     for lk in looks:
         if lk.stage == NOISE_STAGE and lk.focus and lk.obj is not None \
                 and lk.purity >= PURE_SHARE:
             by_place[lk.place].append(lk)
-    n = len(FEATURE_NAMES)
+    n = len(names)
     sq, dof = np.zeros(n), np.zeros(n)
     visits = 0
     for lks in by_place.values():
@@ -323,8 +376,8 @@ def noise_stats(looks: Iterable[Look], between: Iterable[float]) -> dict[str, An
         dof += group_dof
     sd = np.where(dof > 0, np.sqrt(sq / np.maximum(dof, 1)), np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ceiling = np.asarray(list(between), float) / sd
-    return {"features": list(FEATURE_NAMES), "visits": visits, "sd": sd.tolist(),
+        ceiling = between / sd
+    return {"features": list(names), "visits": visits, "sd": sd.tolist(),
             "ceiling": ceiling.tolist()}
 
 
@@ -346,8 +399,19 @@ def memory_separability(looks: Iterable[Look], world: WorldSpec,
     distance to another category, with the share of the pairs of one object's looks and of
     the objects' own-copy distances beyond it: what a threshold that parted them would
     call novel.
+
+    Args:
+        config: The memory's configuration (None: the calibration of the looks' mode).
+
+    Raises:
+        ConfigError: ``config`` is of another feature mode than the looks.
     """
-    cfg = config or MemoryConfig()
+    looks = list(looks)
+    mode = looks_mode(looks)
+    cfg = config or MemoryConfig.for_mode(mode)
+    if looks and cfg.feature_mode is not mode:
+        raise ConfigError(f"memory features {cfg.features!r} against looks of the "
+                          f"{mode.value} mode: give the memory the looks' mode")
     scale, weight = np.asarray(cfg.feature_scale), np.asarray(cfg.feature_weight)
     category = {o.name: o.category() for o in world.objects}
     by_obj: dict[str, list[Look]] = defaultdict(list)
@@ -452,26 +516,86 @@ def position_stats(looks: Iterable[Look], world: WorldSpec) -> dict[str, Any]:
     }
 
 
-def report(log: LookLog) -> dict[str, Any]:
-    """Everything ``roger features`` writes to features.json."""
+def report(log: LookLog, memory_config: MemoryConfig | None = None) -> dict[str, Any]:
+    """Everything ``roger features`` writes to features.json.
+
+    Args:
+        memory_config: The memory whose distance ``memory_separability`` measures (None:
+            the calibration of the looks' mode).
+
+    Raises:
+        ValueError: The looks are not of the log's mode.
+    """
+    mode = log.feature_mode
+    if log.looks and looks_mode(log.looks) is not mode:
+        raise ValueError(f"looks of the {looks_mode(log.looks).value} mode in a log of the "
+                         f"{mode.value} mode")
+    names = feature_names(mode)
     looks = [lk for lk in log.looks if lk.stage != NOISE_STAGE]
     focus = [lk for lk in looks if lk.stage == "scan" or lk.focus]
-    focus_stats = feature_stats(focus, log.world)
+    focus_stats = feature_stats(focus, log.world, names)
     return {
-        "world": log.world.source, "frames": log.frames,
-        "all_looks": feature_stats(looks, log.world),
+        "world": log.world.source, "frames": log.frames, "feature_mode": mode.value,
+        "all_looks": feature_stats(looks, log.world, names),
         "focus_looks": focus_stats,
         "sensor_noise": noise_stats(log.looks, focus_stats["between"]),
-        "memory_separability": memory_separability(looks, log.world),
+        "memory_separability": memory_separability(
+            looks, log.world, memory_config or MemoryConfig.for_mode(mode)),
         "segmentation": segmentation_stats(looks),
         "positions": position_stats(looks, log.world),
         "ratio_target": RATIO_TARGET,
     }
 
 
+#: What each feature mode measures, for the report's first lines.
+MODE_TEXT: dict[FeatureMode, str] = {
+    FeatureMode.PAPER: "the eleven features of equations 1-5",
+    FeatureMode.EXTENDED: "the paper's eleven, then " + " ".join(SHAPE_FEATURE_NAMES),
+}
+
+
+def _unknown(within: float) -> bool:
+    """A feature no look measured: its within-object spread is NaN (``feature_stats``)."""
+    return not math.isfinite(within)
+
+
+def extended_summary(s: dict[str, Any]) -> str | None:
+    """One line on the features beyond the paper's (``feature_stats`` output ``s``): their
+    mean between/within ratio over the finite ones, and which are infinite or unknown;
+    None when ``s`` has none."""
+    new = [i for i, f in enumerate(s["features"]) if f in SHAPE_FEATURE_NAMES]
+    if not new:
+        return None
+    ratio, within = s["ratio"], s["within"]
+    finite = [i for i in new if math.isfinite(ratio[i])]
+    inf = [i for i in new if math.isinf(ratio[i])]
+    unknown = [i for i in new if _unknown(within[i])]
+    # Measured, yet 0 / 0 (alike on every object) or NaN / x (a single category).
+    no_ratio = [i for i in new if i not in finite + inf + unknown]
+    old = [r for f, r in zip(s["features"], ratio, strict=True)
+           if f in FEATURE_NAMES and math.isfinite(r)]
+
+    def names(idx: list[int]) -> str:
+        return ", ".join(s["features"][i] for i in idx)
+
+    mean = f"{np.mean([ratio[i] for i in finite]):.2f} over {names(finite)}" if finite \
+        else "- (none finite)"
+    return ("**Extended features**: mean between/within ratio " + mean
+            + (f"; infinite (no spread within one object): {names(inf)}" if inf else "")
+            + (f"; unknown (never measured): {names(unknown)}" if unknown else "")
+            + (f"; no ratio (no spread, or one category): {names(no_ratio)}"
+               if no_ratio else "")
+            + (f" (the paper's eleven: {np.mean(old):.2f} over their finite ratios)."
+               if old else "."))
+
+
 def markdown(result: dict[str, Any]) -> str:
     """The report as a Markdown table."""
-    lines = [f"Features on `{result['world']}` ({result['frames']} frames).", ""]
+    lines = [f"Features on `{result['world']}` ({result['frames']} frames)."]
+    if "feature_mode" in result:
+        mode = FeatureMode.parse(result["feature_mode"])
+        lines.append(f"Feature mode: {mode.value} ({MODE_TEXT[mode]}).")
+    lines.append("")
     for key, title in (("focus_looks", "initial-scan looks and looks at the focus"),
                        ("all_looks", "every look (all ROIs of every frame)")):
         s = result[key]
@@ -482,6 +606,9 @@ def markdown(result: dict[str, Any]) -> str:
                   "|---|---|---|---|---|---|"]
         for f, w, b, r, c, rc in zip(s["features"], s["within"], s["between"], s["ratio"],
                                      s["copies"], s["ratio_copies"], strict=True):
+            if _unknown(w):
+                lines.append(f"| {f} | unknown | - | - | - | - |")
+                continue
             flag = "" if not math.isfinite(r) or r >= result["ratio_target"] else " (< 2)"
             lines.append(f"| {f} | {w:.4f} | {b:.4f} | {r:.2f}{flag} | {c:.4f} | {rc:.2f} |")
         lines += ["", f"Two looks of one object: median {s['look_distance_median']:.4f}, "
@@ -490,6 +617,9 @@ def markdown(result: dict[str, Any]) -> str:
                   f"{s['copy_distance_median']:.4f}; "
                   f"the two nearest categories: {s['nearest_categories_distance']:.4f} apart.",
                   ""]
+        summary = extended_summary(s) if key == "focus_looks" else None
+        if summary:
+            lines += [summary, ""]
     noise = result.get("sensor_noise")
     if noise and noise["visits"]:
         target = result["ratio_target"]
@@ -499,6 +629,9 @@ def markdown(result: dict[str, Any]) -> str:
                   "object's looks differed by sensor noise alone.", "",
                   "| feature | same-fixation sd | ceiling |", "|---|---|---|"]
         for f, sd, c in zip(noise["features"], noise["sd"], noise["ceiling"], strict=True):
+            if not math.isfinite(sd):  # no two looks of one fixation measured it
+                lines.append(f"| {f} | unknown | - |")
+                continue
             flag = "" if not math.isfinite(c) or c >= target else f" (< {target:g})"
             lines.append(f"| {f} | {sd:.4f} | {c:.2f}{flag} |")
         lines.append("")
@@ -552,7 +685,8 @@ def plot(result: dict[str, Any], path: Path) -> None:
 
     s = result["focus_looks"]
     x = np.arange(len(s["features"]))
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
+    # The paper's eleven fit 11 inches; the extended mode's bars get the same width.
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(max(11.0, len(x)), 4.2))
     ax.bar(x - 0.27, s["within"], 0.27, label="within one object (sd)", color="tab:red")
     ax.bar(x, np.nan_to_num(np.asarray(s["copies"], float)), 0.27,
            label="between copies of a category (sd)", color="tab:purple")
@@ -571,6 +705,9 @@ def plot(result: dict[str, Any], path: Path) -> None:
                             for r in ratio])
     for k in np.flatnonzero(~np.isfinite(ratio)):
         bx.text(x[k], top, "inf", ha="center", va="bottom")
+    for j, w in enumerate(s["within"]):
+        if _unknown(w):  # never measured: no bar, say so instead of a ratio of 0
+            bx.text(x[j], 0.0, "?", ha="center", va="bottom")
     bx.set_ylim(0.0, 1.1 * top)
     noise = result.get("sensor_noise")
     if noise and noise["visits"]:
@@ -592,27 +729,34 @@ def plot(result: dict[str, Any], path: Path) -> None:
 def write_looks_csv(log: LookLog, path: Path) -> None:
     """Every look, one row: stage, gaze, focus, object, purity, position, features.
 
-    An unknown feature is written as its value (0), so ``known`` (one 0/1 per feature, in
-    FEATURE_NAMES order) says which were measured: D of a cut or occluded silhouette,
-    I/T/S of a ROI with too little rim of its own, W before a haptic improvement. ``place``
+    The feature columns are those of the looks' mode (``feature_names``). An unknown
+    feature is written as its value (0), so ``known`` (one 0/1 per feature, in that order)
+    says which were measured: D of a cut or occluded silhouette, I/T/S of a ROI with too
+    little rim of its own, W (and the touch features) before a haptic improvement. ``place``
     is the spatial-map place the gaze aimed at (-1 for the scan); the ``noise`` stage's
     rows are the repeated looks at one fixation (not in the spreads of features.md)."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["stage", "gaze", "focus", "object", "purity", "merged", "x", "y", "z",
-                    *FEATURE_NAMES, "W_known", "known", "place"])
+                    *feature_names(log.feature_mode), "W_known", "known", "place"])
         for lk in log.looks:
             r = lk.roi
             w.writerow([lk.stage, lk.gaze, int(lk.focus), lk.obj or "", f"{lk.purity:.3f}",
                         "+".join(lk.merged), *(f"{v:.4f}" for v in r.position),
-                        *(f"{v:.5f}" for v in r.features), int(r.known[-1]),
+                        *(f"{v:.5f}" for v in r.features), int(r.known[WEIGHT_INDEX]),
                         "".join("1" if k else "0" for k in r.known), lk.place])
 
 
-def write(log: LookLog, out: Path) -> dict[str, Any]:
-    """features.json, features.md, features.png and looks.csv in ``out``."""
+def write(log: LookLog, out: Path, memory_config: MemoryConfig | None = None
+          ) -> dict[str, Any]:
+    """features.json, features.md, features.png and looks.csv in ``out``.
+
+    Args:
+        memory_config: The memory whose distance the report measures (None: the
+            calibration of the looks' mode).
+    """
     out.mkdir(parents=True, exist_ok=True)
-    result = report(log)
+    result = report(log, memory_config)
     atomic_write_bytes(out / "features.json", (json.dumps(result, indent=2) + "\n").encode())
     atomic_write_bytes(out / "features.md", markdown(result).encode())
     write_looks_csv(log, out / "looks.csv")

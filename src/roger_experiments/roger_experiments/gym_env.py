@@ -6,7 +6,8 @@ whose action is the agent's (sections 4.2 and 5 of the paper).
 
 - Observation: the FSM state of Figure 3 as ``Discrete(6)``, the row of ``fsm.STATES``
   (000, 001, 010, 011, 100, 101). With ``features=True`` a ``Dict`` adds the focused ROI's
-  feature vector (FEATURE_NAMES, equations 1-5) and its ``known`` mask (zeros without a
+  feature vector (``feature_names(mode)``: equations 1-5, and the shape evidence in the
+  extended mode) and its ``known`` mask (zeros without a
   focus).
 - Actions: ``Discrete(4)``, the four actions of ``roger_common.types.Action``.
 - Reward: the FSM's, from the attention configuration's RewardConfig: only the map updates
@@ -44,7 +45,7 @@ from roger_attention.fsm import ACTIONS, STATES, State
 from roger_attention.policies import FixedPolicy
 from roger_attention.qlearning import QTable
 from roger_common.errors import ConfigError, RogerError
-from roger_common.types import FEATURE_DIM, Action, WorldSpec
+from roger_common.types import Action, WorldSpec, feature_dim
 from roger_experiments.core_loop import CoreLoop
 from roger_experiments.evaluation import ACTION_NAMES
 from roger_experiments.view import compose_view
@@ -126,12 +127,14 @@ class RogerAttentionEnv(gymnasium.Env):
         self.attention_config = dataclasses.replace(attention_config or AttentionConfig(),
                                                     policy="straightforward")
         self.action_space = spaces.Discrete(len(ACTIONS))
+        #: Length of the feature vector (the perception config's feature mode).
+        self._dim = feature_dim(self.configs["perception_config"].features)
         state_space = spaces.Discrete(len(STATES))
         if features:
             self.observation_space = spaces.Dict({
                 "state": state_space,
-                "features": spaces.Box(0.0, 1.0, (FEATURE_DIM,), np.float32),
-                "known": spaces.MultiBinary(FEATURE_DIM)})
+                "features": spaces.Box(0.0, 1.0, (self._dim,), np.float32),
+                "known": spaces.MultiBinary(self._dim)})
         else:
             self.observation_space = state_space
         self.loop: CoreLoop | None = None
@@ -224,8 +227,8 @@ class RogerAttentionEnv(gymnasium.Env):
             return state
         assert self.loop is not None
         entry = self.loop.ctl.spatial_map.get(self.loop.ctl.focus)
-        feats = np.zeros(FEATURE_DIM, np.float32)
-        known = np.zeros(FEATURE_DIM, np.int8)
+        feats = np.zeros(self._dim, np.float32)
+        known = np.zeros(self._dim, np.int8)
         if entry is not None:
             feats = np.clip(np.asarray(entry.features, np.float32), 0.0, 1.0)
             known = np.asarray(entry.known, np.int8)

@@ -28,22 +28,37 @@ from typing import Any
 import numpy as np
 
 from roger_common.types import (
-    FEATURE_DIM,
-    FEATURE_NAMES,
+    DEFAULT_FEATURE_MODE,
     Action,
+    FeatureMode,
     MatchOutcome,
     MatchResult,
     MemoryOp,
     MemoryRequest,
     WorldSpec,
+    feature_names,
+    mode_of_dim,
 )
 from roger_experiments.core_loop import CoreLoop
+from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
+from roger_perception.config import PerceptionConfig
 
-#: Columns of a query file: labels first, then the features, then the known mask.
-COLUMNS: tuple[str, ...] = (
+#: Columns of a query file before the features: the labels.
+LABELS: tuple[str, ...] = (
     "world", "policy", "seed", "cycle", "action", "focus", "entry", "final", "object",
-    "category", *FEATURE_NAMES, *(f"k_{n}" for n in FEATURE_NAMES))
+    "category")
+
+
+def columns(mode: FeatureMode | str) -> tuple[str, ...]:
+    """Columns of a query file of ``mode``: labels, then the features, then the known mask
+    (the feature columns say which mode a file holds)."""
+    names = feature_names(mode)
+    return (*LABELS, *names, *(f"k_{n}" for n in names))
+
+
+#: Columns of a paper-mode query file (the shipped test/data/memory_queries.csv.gz).
+COLUMNS: tuple[str, ...] = columns(FeatureMode.PAPER)
 _ACTIONS = {Action.ATTENTION_SHIFT: "shift", Action.VISUAL_IMPROVEMENT: "visual",
             Action.HAPTIC_IMPROVEMENT: "haptic"}
 
@@ -63,8 +78,8 @@ class Query:
         final: The request's final-trial flag.
         obj: Ground truth (scoring only): the object under the window; "" for none.
         category: Ground truth (scoring only): that object's category; "" for none.
-        features: FEATURE_DIM floats as sent.
-        known: FEATURE_DIM booleans as sent.
+        features: The feature vector as sent (its mode's length).
+        known: Its known mask as sent.
     """
 
     world: str
@@ -85,8 +100,8 @@ class _UndecidedMemory(AssociativeMemory):
     """A memory that says UNDETERMINED before the final trial and NEW on it, and keeps the
     requests: every focus gets all its improvements."""
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, mode: FeatureMode | str = DEFAULT_FEATURE_MODE) -> None:
+        super().__init__(MemoryConfig.for_mode(mode))
         self.requests: list[MemoryRequest] = []
         self._n_stored = 0
 
@@ -109,10 +124,15 @@ def category_label(world: WorldSpec, name: str | None) -> str:
     return ""
 
 
-def record(world: WorldSpec, policy: str, seed: int, cycles: int) -> list[Query]:
-    """Run ``cycles`` control cycles and return every MATCH request with its labels."""
-    memory = _UndecidedMemory()
-    loop = CoreLoop(world, policy=policy, seed=seed, memory=memory)
+def record(world: WorldSpec, policy: str, seed: int, cycles: int,
+           features: FeatureMode | str = DEFAULT_FEATURE_MODE) -> list[Query]:
+    """Run ``cycles`` control cycles and return every MATCH request with its labels
+    (feature vectors of the mode ``features``)."""
+    mode = FeatureMode.parse(features)
+    memory = _UndecidedMemory(mode)
+    loop = CoreLoop(world, policy=policy, seed=seed, memory=memory,
+                    perception_config=PerceptionConfig(features=mode.value),
+                    memory_config=memory.config)
     rows: list[Query] = []
     focus = 0
     try:
@@ -142,11 +162,16 @@ def _open(path: Path, mode: str) -> io.TextIOBase:
 
 
 def write_csv(queries: Iterable[Query], path: Path) -> None:
-    """Write queries to a CSV file (features with 4 decimals; gzip when it ends in .gz)."""
+    """Write queries to a CSV file (features with 4 decimals; gzip when it ends in .gz).
+    All queries must be of one feature mode; the columns name its features."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    queries = list(queries)
+    modes = {mode_of_dim(len(q.features)) for q in queries} or {FeatureMode.PAPER}
+    if len(modes) > 1:
+        raise ValueError(f"queries of several feature modes: {sorted(m.value for m in modes)}")
     with _open(path, "w") as fh:
         w = csv.writer(fh)
-        w.writerow(COLUMNS)
+        w.writerow(columns(modes.pop()))
         for q in queries:
             w.writerow([q.world, q.policy, q.seed, q.cycle, q.action, q.focus, q.entry,
                         int(q.final), q.obj, q.category,
@@ -159,12 +184,18 @@ def read_csv(path: Path) -> list[Query]:
     """Read a file written by :func:`write_csv`."""
     out: list[Query] = []
     with _open(Path(path), "r") as fh:
-        for r in csv.DictReader(fh):
-            known = np.array([r[f"k_{n}"] == "1" for n in FEATURE_NAMES])
-            feats = np.array([float(r[n]) if k else 0.0 for n, k in zip(FEATURE_NAMES, known,
+        reader = csv.DictReader(fh)
+        header = tuple(reader.fieldnames or ())
+        modes = [m for m in FeatureMode if header == columns(m)]
+        if not modes:
+            raise ValueError(f"{path}: the columns are not those of a query file of any "
+                             "feature mode")
+        names = feature_names(modes[0])
+        for r in reader:
+            known = np.array([r[f"k_{n}"] == "1" for n in names])
+            feats = np.array([float(r[n]) if k else 0.0 for n, k in zip(names, known,
                                                                        strict=True)],
                              np.float32)
-            assert feats.shape == (FEATURE_DIM,)
             out.append(Query(r["world"], r["policy"], int(r["seed"]), int(r["cycle"]),
                              r["action"], int(r["focus"]), int(r["entry"]), r["final"] == "1",
                              r["object"], r["category"], feats, known))
@@ -249,23 +280,48 @@ def replay(queries: Sequence[Query], memory_factory: Any) -> list[ReplayScore]:
     return scores
 
 
+def recipe_world(spec: str) -> WorldSpec:
+    """A random world named ``RECIPE:SEED``: plain (8 categories x 3, sizes 0.08-0.14 m,
+    as bench/memory_targets.py draws them), twins (``shape_twins``: 4 x 3) or yaw
+    (``yaw_copies``: 8 x 3)."""
+    from roger_sim.worldgen import random_world
+    recipe, _, seed_text = spec.partition(":")
+    try:
+        seed = int(seed_text)
+    except ValueError:
+        raise ValueError(f"random world {spec!r}: expected RECIPE:SEED, e.g. twins:7") from None
+    if recipe == "plain":
+        return random_world(8, 3, seed, size_range=(0.08, 0.14))
+    if recipe == "twins":
+        return random_world(4, 3, seed, size_range=(0.08, 0.14), shape_twins=True)
+    if recipe == "yaw":
+        return random_world(8, 3, seed, size_range=(0.08, 0.14), yaw_copies=True)
+    raise ValueError(f"random world {spec!r}: recipe must be plain, twins or yaw")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Command line: record one or more worlds, policies and seeds into one CSV file."""
     from roger_sim.world import load_world
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--world", type=Path, action="append", required=True)
+    p.add_argument("--world", type=Path, action="append", default=None)
     p.add_argument("--policies", nargs="+", default=["straightforward"])
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--cycles", type=int, default=204)
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--features", choices=[m.value for m in FeatureMode],
+                   default=DEFAULT_FEATURE_MODE.value, help="feature mode to record")
+    p.add_argument("--random", nargs="*", default=[], metavar="RECIPE:SEED",
+                   help="random worlds too: plain:S, twins:S or yaw:S "
+                        "(roger_sim.worldgen.random_world(8 or 4, 3, S, ...))")
     args = p.parse_args(argv)
     rows: list[Query] = []
-    for world_file in args.world:
-        world = load_world(world_file)
+    worlds = [load_world(w) for w in args.world or []]
+    worlds += [recipe_world(spec) for spec in args.random]
+    for world in worlds:
         for policy in args.policies:
             for seed in args.seeds:
-                rows += record(world, policy, seed, args.cycles)
+                rows += record(world, policy, seed, args.cycles, args.features)
     write_csv(rows, args.out)
     print(f"{len(rows)} queries written to {args.out}")
 

@@ -39,8 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from roger_common.types import FEATURE_DIM
-
 #: Bins of the |difference| histogram of the "different" component.
 _EDGES = np.concatenate([[0.0], np.geomspace(1e-3, 1.0, 40), [np.inf]])
 
@@ -168,8 +166,9 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
-        features: (n, FEATURE_DIM) looks as sent to the memory (unknown entries ignored).
-        known: (n, FEATURE_DIM) their known masks.
+        features: (n, F) looks as sent to the memory (unknown entries ignored), F the
+            feature mode's length.
+        known: (n, F) their known masks.
         run: (n,) run of each look (pairs are formed within a run only: entry ids are
             per run).
         entry: (n,) spatial-map entry of each look.
@@ -192,8 +191,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     """
     x = np.asarray(features, np.float64)
     k = np.asarray(known, bool)
-    if x.shape[1:] != (FEATURE_DIM,) or k.shape != x.shape:
-        raise ValueError(f"features and known must be (n, {FEATURE_DIM})")
+    if x.ndim != 2 or k.shape != x.shape:
+        raise ValueError(f"features and known must be (n, F) alike, got {x.shape} and "
+                         f"{k.shape}")
+    n_feat = x.shape[1]
     run = np.asarray(run)
     entry = np.asarray(entry)
     rng = np.random.default_rng(seed)
@@ -209,12 +210,12 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
 
     d1, c1 = x[i1] - x[j1], k[i1] & k[j1]
     a1 = np.abs(d1)
-    feat = np.arange(FEATURE_DIM)[None, :]
+    feat = np.arange(n_feat)[None, :]
     bins = np.clip(np.searchsorted(_EDGES, a1, side="right") - 1, 0, len(_EDGES) - 2)
-    dens = np.empty((FEATURE_DIM, len(_EDGES) - 1))
+    dens = np.empty((n_feat, len(_EDGES) - 1))
     widths = np.diff(_EDGES)
     widths[-1] = 1.0
-    for f in range(FEATURE_DIM):
+    for f in range(n_feat):
         h = np.bincount(bins[c1[:, f], f], minlength=len(_EDGES) - 1) + 0.5
         dens[f] = h / h.sum() / widths
     log_u = np.log(dens[feat, bins])
@@ -250,8 +251,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     # inspection set the weight's 99.9th percentile of all same-entry pairs to 0.14).
     # Scaled from one object's scatter to the category's (feature_scale / entry_scale):
     # another copy of the category, elsewhere, differs by that much more.
-    veto = np.empty(FEATURE_DIM)
-    for f in range(FEATURE_DIM):
+    veto = np.empty(n_feat)
+    for f in range(n_feat):
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]

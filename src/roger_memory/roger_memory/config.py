@@ -11,11 +11,17 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, NoReturn
 
 from roger_common.errors import ConfigError
-from roger_common.types import FEATURE_NAMES
+from roger_common.types import (
+    DEFAULT_FEATURE_MODE,
+    TOUCH_FEATURE_NAMES,
+    FeatureMode,
+    feature_names,
+)
 
 #: Fields that fix the shape of the network; a memory file is only compatible with a
-#: configuration that agrees on them (none: the radial network's shape is the stored looks).
-ARCHITECTURE_FIELDS: tuple[str, ...] = ()
+#: configuration that agrees on them: the feature mode (the length and meaning of every
+#: look). The radial network's other dimensions are the stored looks.
+ARCHITECTURE_FIELDS: tuple[str, ...] = ("features",)
 
 #: Calibration of the shipped defaults (docs/memory.md, "Calibration"): measured by
 #: roger_memory.calibration.calibrate on test/data/memory_queries.csv.gz, the robot's own
@@ -34,15 +40,67 @@ CALIBRATED_VETO: tuple[float, ...] = (
     0.2578, 0.2195, 0.2638, 0.0372, 0.0380)
 CALIBRATED_NOISE_DOF: float = 6.32
 
+#: The extended mode's calibration (FEATURE_NAMES then SHAPE_FEATURE_NAMES), measured the
+#: same way on test/data/memory_queries_extended.csv.gz: the robot's own extended looks at
+#: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
+#: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
+EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
+    0.02468, 0.03949, 0.05105, 0.00497, 0.00555, 0.00484,
+    0.02567, 0.02206, 0.02232, 0.00422, 0.01055, 0.03215,
+    0.02917, 0.04508, 0.05619, 0.00170, 0.01070, 0.01353)
+EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
+    1.815, 1.343, 1.066, 0.683, 0.511, 0.658,
+    0.663, 0.578, 0.159, 2.130, 3.517, 0.511,
+    0.979, 0.335, 0.638, 0.794, 0.798, 0.823)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.24
+EXTENDED_VETO: tuple[float, ...] = (
+    0.1353, 0.2629, 0.3488, 0.0387, 0.0445, 0.0359,
+    0.2378, 0.1926, 0.2378, 0.0313, 0.0402, 0.2273,
+    0.3835, 0.6351, 0.7994, 0.0090, 0.1219, 0.3046)
+EXTENDED_NOISE_DOF: float = 4.69
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """One feature mode's calibrated defaults (see MemoryConfig for each field)."""
+
+    feature_scale: tuple[float, ...]
+    feature_weight: tuple[float, ...]
+    identify_distance: float
+    veto: tuple[float, ...]
+    noise_dof: float
+    maskable_features: tuple[str, ...]
+
+
+#: The calibrated defaults of each feature mode.
+CALIBRATED: dict[FeatureMode, Calibrated] = {
+    FeatureMode.PAPER: Calibrated(CALIBRATED_FEATURE_SCALE, CALIBRATED_FEATURE_WEIGHT,
+                                  CALIBRATED_IDENTIFY_DISTANCE, CALIBRATED_VETO,
+                                  CALIBRATED_NOISE_DOF, ("W",)),
+    FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
+                                     EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
+                                     EXTENDED_NOISE_DOF, TOUCH_FEATURE_NAMES),
+}
+_DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]
+
 
 @dataclass(frozen=True)
 class MemoryConfig:
     """Configuration of :class:`roger_memory.memory.AssociativeMemory`.
 
+    The calibrated fields (``feature_scale``, ``feature_weight``, ``identify_distance``,
+    ``veto``, ``noise_dof``, ``maskable_features``) default to the calibration of the
+    default feature mode; in a config of another mode, each calibrated field left at a
+    mode's calibration takes that mode's (``CALIBRATED``), so ``MemoryConfig(features=
+    "paper", veto=...)`` is the paper's calibration with your veto.
+
     Attributes:
-        feature_scale: Per feature (FEATURE_NAMES order), the spread sigma_f of one look of
-            a category around another look of it (calibrated, docs/memory.md); the initial
-            scale of the network's radial units.
+        features: Feature mode of the vectors the memory compares: "paper" (FEATURE_NAMES,
+            equations 1-5) or "extended" (those, then SHAPE_FEATURE_NAMES). A memory file
+            of one mode is refused by a memory of the other.
+        feature_scale: Per feature (``feature_names(features)`` order), the spread
+            sigma_f of one look of a category around another look of it (calibrated,
+            docs/memory.md); the initial scale of the network's radial units.
         feature_weight: Per feature, the weight of its z_f^2 in every distance: its
             information, log(spread between entries / sigma_f), mean 1 (calibrated); 0
             leaves a feature out of the distance (it still counts towards
@@ -84,15 +142,17 @@ class MemoryConfig:
         maskable_features: Features that may be unknown at match time (FEATURE_NAMES).
     """
 
-    feature_scale: tuple[float, ...] = field(default=CALIBRATED_FEATURE_SCALE, metadata={
+    features: str = field(default=DEFAULT_FEATURE_MODE.value, metadata={
+        "doc": "Feature mode: paper (eqs. 1-5) or extended (+ shape from stereo and touch)"})
+    feature_scale: tuple[float, ...] = field(default=_DEFAULT.feature_scale, metadata={
         "doc": "Calibrated spread of one look of a category, per feature"})
-    feature_weight: tuple[float, ...] = field(default=CALIBRATED_FEATURE_WEIGHT, metadata={
+    feature_weight: tuple[float, ...] = field(default=_DEFAULT.feature_weight, metadata={
         "doc": "Calibrated information weight of each feature in the distance"})
-    identify_distance: float = field(default=CALIBRATED_IDENTIFY_DISTANCE, metadata={
+    identify_distance: float = field(default=_DEFAULT.identify_distance, metadata={
         "doc": "Calibrated acceptance distance tau (weighted RMS z over common features)"})
-    noise_dof: float = field(default=CALIBRATED_NOISE_DOF, metadata={
+    noise_dof: float = field(default=_DEFAULT.noise_dof, metadata={
         "doc": "Calibrated Student-t degrees of freedom of the replay noise"})
-    veto: tuple[float, ...] = field(default=CALIBRATED_VETO, metadata={
+    veto: tuple[float, ...] = field(default=_DEFAULT.veto, metadata={
         "doc": "Calibrated largest per-feature difference of an identification",
         "live": True})
     min_common_features: int = field(default=6, metadata={
@@ -125,31 +185,39 @@ class MemoryConfig:
         "doc": "Pull of centres, scales and tau towards stored looks and calibration"})
     unknown_feature_prob: float = field(default=0.5, metadata={
         "doc": "Probability that a replayed maskable feature is made unknown"})
-    maskable_features: tuple[str, ...] = field(default=("W",), metadata={
-        "doc": "Features that may be unknown at match time (FEATURE_NAMES)"})
+    maskable_features: tuple[str, ...] = field(default=_DEFAULT.maskable_features, metadata={
+        "doc": "Features that may be unknown at match time (names of the mode's features)"})
 
     def __post_init__(self) -> None:
+        try:
+            mode = FeatureMode.parse(self.features)
+        except (ValueError, TypeError) as exc:
+            _fail("features", self.features, str(exc))
+        object.__setattr__(self, "features", mode.value)
         object.__setattr__(self, "maskable_features", tuple(self.maskable_features))
-        for name in self.maskable_features:
-            if name not in FEATURE_NAMES:
-                _fail("maskable_features", self.maskable_features, f"names in {FEATURE_NAMES}")
+        self._take_calibration(mode)
+        names = feature_names(mode)
         # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
         for name, kind in (("feature_scale", "positive numbers"),
                            ("veto", "positive numbers"), ("feature_weight", "numbers >= 0")):
             value = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                           else v for v in getattr(self, name))
             object.__setattr__(self, name, value)
-            if len(value) != len(FEATURE_NAMES) or not all(
+            if len(value) != len(names) or not all(
                     isinstance(v, float) and math.isfinite(v)
                     and (v >= 0 if name == "feature_weight" else v > 0) for v in value):
-                _fail(name, getattr(self, name), f"{len(FEATURE_NAMES)} {kind}, one per feature")
+                _fail(name, getattr(self, name),
+                      f"{len(names)} {kind}, one per feature of the {mode.value} mode")
+        for name in self.maskable_features:
+            if name not in names:
+                _fail("maskable_features", self.maskable_features, f"names in {names}")
         if sum(self.feature_weight) <= 0:
             _fail("feature_weight", self.feature_weight, "not every weight 0")
         _positive("identify_distance", self.identify_distance)
         _positive("noise_dof", self.noise_dof)
         _positive_int("min_common_features", self.min_common_features)
-        if self.min_common_features > len(FEATURE_NAMES):
-            _fail("min_common_features", self.min_common_features, f"<= {len(FEATURE_NAMES)}")
+        if self.min_common_features > len(names):
+            _fail("min_common_features", self.min_common_features, f"<= {len(names)}")
         _unit("identify_share", self.identify_share)
         _positive_int("refine_looks", self.refine_looks)
         _positive("learning_rate", self.learning_rate)
@@ -171,6 +239,27 @@ class MemoryConfig:
         _non_negative("prior_weight", self.prior_weight)
         _unit("unknown_feature_prob", self.unknown_feature_prob)
 
+    def _take_calibration(self, mode: FeatureMode) -> None:
+        """Each calibrated field left at another mode's calibration takes ``mode``'s."""
+        mine = CALIBRATED[mode]
+        for f in fields(Calibrated):
+            value = _as_tuple(getattr(self, f.name))
+            if value == _as_tuple(getattr(mine, f.name)):
+                continue
+            if any(value == _as_tuple(getattr(other, f.name))
+                   for m, other in CALIBRATED.items() if m is not mode):
+                object.__setattr__(self, f.name, getattr(mine, f.name))
+
+    @classmethod
+    def for_mode(cls, mode: FeatureMode | str, **overrides: Any) -> MemoryConfig:
+        """The calibrated defaults of ``mode`` with ``overrides``."""
+        return cls(features=FeatureMode.parse(mode).value, **overrides)
+
+    @property
+    def feature_mode(self) -> FeatureMode:
+        """``features`` as the enum."""
+        return FeatureMode(self.features)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-friendly dict of every field (tuples become lists)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -189,6 +278,10 @@ class MemoryConfig:
         kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
                                   for k, v in data.items()}
         return cls(**kwargs)
+
+
+def _as_tuple(value: Any) -> Any:
+    return tuple(value) if isinstance(value, (list, tuple)) else (value,)
 
 
 def _fail(name: str, value: object, expected: str) -> NoReturn:

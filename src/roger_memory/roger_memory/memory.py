@@ -37,12 +37,12 @@ import torch
 from roger_common.configdoc import check_live_change
 from roger_common.errors import ConfigError, MemoryFileError, MessageError
 from roger_common.types import (
-    FEATURE_DIM,
     WEIGHT_INDEX,
     MatchOutcome,
     MatchResult,
     MemoryOp,
     MemoryRequest,
+    feature_dim,
 )
 from roger_memory.calibration import rms_z
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
@@ -113,8 +113,9 @@ class AssociativeMemory:
             raise ConfigError(f"AssociativeMemory.seed={seed!r}: expected an int >= 0")
         self._config = config
         self._seed = int(seed)
-        self._exemplars = np.zeros((0, FEATURE_DIM), np.float32)
-        self._known = np.zeros((0, FEATURE_DIM), bool)
+        self._dim = feature_dim(config.features)
+        self._exemplars = np.zeros((0, self._dim), np.float32)
+        self._known = np.zeros((0, self._dim), bool)
         self._addresses = np.zeros(0, np.int64)
         self._stored = np.zeros(0, bool)
         self._network = AssociativeNetwork(config.feature_scale, config.identify_distance,
@@ -163,12 +164,12 @@ class AssociativeMemory:
         return self._network
 
     def exemplars(self, address: int) -> np.ndarray:
-        """Copy of the looks of ``address``, shape (n, FEATURE_DIM); unknown entries 0."""
+        """Copy of the looks of ``address``, shape (n, F); unknown entries 0."""
         self._check_address(address)
         return self._exemplars[self._addresses == address].copy()
 
     def exemplar_known(self, address: int) -> np.ndarray:
-        """Copy of the known masks of the looks of ``address``, shape (n, FEATURE_DIM)."""
+        """Copy of the known masks of the looks of ``address``, shape (n, F)."""
         self._check_address(address)
         return self._known[self._addresses == address].copy()
 
@@ -179,7 +180,7 @@ class AssociativeMemory:
         STORE sent again after its reply was lost (the requester re-sends what it sent)
         is recognised, never a new look at an object.
         """
-        x, k = _validate(features, known)
+        x, k = _validate(features, known, self._dim, self._config.features)
         same = np.all(self._known == k, axis=1) & np.all(
             np.where(k, self._exemplars == x, True), axis=1)
         hits = self._addresses[same]
@@ -194,7 +195,7 @@ class AssociativeMemory:
         Returns:
             (size,) float64.
         """
-        x, k = _validate(features, known)
+        x, k = _validate(features, known, self._dim, self._config.features)
         d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
                    self._config.min_common_features, self._config.feature_weight)
         out = np.full(self.size, np.inf)
@@ -206,8 +207,8 @@ class AssociativeMemory:
         """Match a feature pattern against the long-term memory (section 4.2).
 
         Args:
-            features: FEATURE_DIM floats in [0, 1] (clipped); unknown entries are ignored.
-            known: FEATURE_DIM booleans; False where a feature is not measured yet.
+            features: F floats in [0, 1] (clipped); unknown entries are ignored.
+            known: F booleans; False where a feature is not measured yet.
             final_trial: All improvement trials are used up: answer IDENTIFIED or NEW;
                 UNDETERMINED only when the look knows fewer than ``min_common_features``
                 features (nothing to compare, nothing to learn).
@@ -232,7 +233,7 @@ class AssociativeMemory:
         ``network`` replaces the memory's own network for this one decision (ablations);
         nothing is then remembered of the look.
         """
-        x, k = _validate(features, known)
+        x, k = _validate(features, known, self._dim, self._config.features)
         if network is None:
             self._keep_look(focus_id, x, k)
         net = network or self._network
@@ -296,7 +297,7 @@ class AssociativeMemory:
         ``features`` itself; then the network is retrained by replay.
 
         Args:
-            features: FEATURE_DIM floats in [0, 1]; known: which of them are measured.
+            features: F floats in [0, 1]; known: which of them are measured.
             focus_id: The focus whose looks to store with it (0: only ``features``).
 
         Returns:
@@ -305,7 +306,8 @@ class AssociativeMemory:
         Raises:
             MessageError: Wrong shape, a known feature not finite, or nothing known.
         """
-        x, k = _validate(features, known, need_known=True)
+        x, k = _validate(features, known, self._dim, self._config.features,
+                         need_known=True)
         looks = self._focus_looks if focus_id and focus_id == self._focus_id else []
         xs, ks = self._same_object(looks, x, k)
         address = self._network.add_address()
@@ -317,12 +319,13 @@ class AssociativeMemory:
         """Store several new objects, one look each, with one retraining (e.g. to preload).
 
         Args:
-            features: (n, FEATURE_DIM) floats; known: (n, FEATURE_DIM) booleans.
+            features: (n, F) floats; known: (n, F) booleans.
 
         Returns:
             The n new addresses, in order.
         """
-        rows = [_validate(f, k, need_known=True) for f, k in zip(features, known, strict=True)]
+        rows = [_validate(f, k, self._dim, self._config.features, need_known=True)
+                for f, k in zip(features, known, strict=True)]
         new: list[int] = []
         for x, k in rows:
             address = self._network.add_address()
@@ -362,6 +365,12 @@ class AssociativeMemory:
         except (ConfigError, TypeError) as exc:
             raise MemoryFileError(f"{source}: incompatible configuration ({exc})") from exc
         config = saved if config is None else config
+        if config.features != saved.features:
+            raise MemoryFileError(
+                f"{source}: a memory of {saved.features}-mode features "
+                f"({len(snap.exemplars[0]) if len(snap.exemplars) else '?'} per look), but "
+                f"this run uses the {config.features} mode; run with --features "
+                f"{saved.features}, or give another memory file")
         for name in ARCHITECTURE_FIELDS:
             if getattr(config, name) != getattr(saved, name):
                 raise MemoryFileError(
@@ -524,14 +533,15 @@ def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: 
 
 
 def _validate(
-    features: np.ndarray, known: np.ndarray, need_known: bool = False
+    features: np.ndarray, known: np.ndarray, dim: int, mode: str, need_known: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Checked copies: float32 features clipped to [0, 1] (0 where unknown), bool mask."""
     x = np.asarray(features, np.float64).reshape(-1)
     k = np.asarray(known).reshape(-1)
-    if x.shape != (FEATURE_DIM,) or k.shape != (FEATURE_DIM,):
+    if x.shape != (dim,) or k.shape != (dim,):
         raise MessageError(
-            f"features/known must have {FEATURE_DIM} entries, got {x.size} and {k.size}")
+            f"features/known must have {dim} entries (a memory of the {mode} feature "
+            f"mode), got {x.size} and {k.size}")
     k = k.astype(bool)
     if not np.all(np.isfinite(x[k])):
         raise MessageError("a known feature is NaN or infinite")

@@ -25,7 +25,7 @@ from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
 from roger_common.ros_node import LATCHED, RELIABLE, declare_config, spin_node
-from roger_common.types import MatchOutcome, MatchResult, MemoryOp
+from roger_common.types import MatchOutcome, MatchResult, MemoryOp, mode_of_dim
 from roger_interfaces.msg import MemoryRequest, MemoryResult
 from roger_memory.config import MemoryConfig, MemoryNodeConfig
 from roger_memory.memory import AssociativeMemory
@@ -66,6 +66,13 @@ class MemoryNode(Node):
             req = conv.msg_to_request(msg)
         except MessageError as exc:
             self.get_logger().error(f"memory request refused: {exc}")
+            return
+        mode = mode_of_dim(len(req.features))
+        if mode.value != self.memory.config.features:
+            self.get_logger().error(
+                f"memory request {req.request_id} refused: it carries {mode.value}-mode "
+                f"features, this memory compares {self.memory.config.features}-mode ones "
+                "(give perception and memory one feature mode)")
             return
         cached = self._replies.get(req.request_id)
         if cached is not None and cached.op == int(req.op):

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES, WEIGHT_INDEX
+from roger_common.types import WEIGHT_INDEX, feature_names
 from roger_memory.config import MemoryConfig
 
 #: Activation standing in for "no unit can answer" (finite, so that gradients stay finite).
@@ -123,7 +123,9 @@ class AssociativeNetwork(nn.Module):
                  feature_weight: tuple[float, ...] | None = None) -> None:
         super().__init__()
         self.min_common_features = int(min_common_features)
-        weight = [1.0] * FEATURE_DIM if feature_weight is None else list(feature_weight)
+        #: Length of the feature vectors (the mode's, ``roger_common.types.feature_dim``).
+        self.dim = len(feature_scale)
+        weight = [1.0] * self.dim if feature_weight is None else list(feature_weight)
         self.register_buffer("feature_weight", torch.tensor(weight, dtype=torch.float32),
                              persistent=False)
         self.feature_weight: torch.Tensor
@@ -136,10 +138,10 @@ class AssociativeNetwork(nn.Module):
         # by several sigma per step.
         self.register_buffer("step", np.sqrt(2.0) * torch.tensor(feature_scale,
                                                                    dtype=torch.float32))
-        self.register_buffer("stored", torch.zeros(0, FEATURE_DIM))
-        self.shift = nn.Parameter(torch.zeros(0, FEATURE_DIM))
+        self.register_buffer("stored", torch.zeros(0, self.dim))
+        self.shift = nn.Parameter(torch.zeros(0, self.dim))
         self.bias = nn.Parameter(torch.zeros(0))
-        self.register_buffer("unit_known", torch.zeros(0, FEATURE_DIM, dtype=torch.bool))
+        self.register_buffer("unit_known", torch.zeros(0, self.dim, dtype=torch.bool))
         self.register_buffer("unit_address", torch.zeros(0, dtype=torch.long))
         self.step: torch.Tensor
         self.stored: torch.Tensor
@@ -158,7 +160,7 @@ class AssociativeNetwork(nn.Module):
 
     @property
     def centres(self) -> torch.Tensor:
-        """The units' centres, (n_units, FEATURE_DIM): stored look + trained shift."""
+        """The units' centres, (n_units, dim): stored look + trained shift."""
         return self.stored + self.shift * self.step
 
     @property
@@ -188,8 +190,8 @@ class AssociativeNetwork(nn.Module):
 
     def add_units(self, features: np.ndarray, known: np.ndarray, address: int) -> None:
         """Append hidden units centred on looks of ``address`` (the store writes them in)."""
-        x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, FEATURE_DIM))
-        k = torch.from_numpy(np.asarray(known, bool).reshape(-1, FEATURE_DIM))
+        x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, self.dim))
+        k = torch.from_numpy(np.asarray(known, bool).reshape(-1, self.dim))
         with torch.no_grad():
             self.shift = nn.Parameter(torch.cat([self.shift.detach(), torch.zeros_like(x)]))
         self.stored = torch.cat([self.stored, x])
@@ -200,17 +202,17 @@ class AssociativeNetwork(nn.Module):
     def resize(self, n_units: int, n_addresses: int) -> None:
         """Empty parameters of the given shape (to load a saved state_dict into)."""
         with torch.no_grad():
-            self.shift = nn.Parameter(torch.zeros(n_units, FEATURE_DIM))
+            self.shift = nn.Parameter(torch.zeros(n_units, self.dim))
             self.bias = nn.Parameter(torch.zeros(n_addresses))
-        self.stored = torch.zeros(n_units, FEATURE_DIM)
-        self.unit_known = torch.zeros(n_units, FEATURE_DIM, dtype=torch.bool)
+        self.stored = torch.zeros(n_units, self.dim)
+        self.unit_known = torch.zeros(n_units, self.dim, dtype=torch.bool)
         self.unit_address = torch.zeros(n_units, dtype=torch.long)
 
     def untrained_copy(self, generator: torch.Generator) -> AssociativeNetwork:
         """A network of the same shape whose parameters were never trained (for ablations):
         centres drawn uniformly in the feature range, scales, tau and gain drawn around 1,
         biases around 0. The units keep their known masks and addresses (the shape)."""
-        net = AssociativeNetwork(tuple([1.0] * FEATURE_DIM), 1.0, self.min_common_features,
+        net = AssociativeNetwork(tuple([1.0] * self.dim), 1.0, self.min_common_features,
                                  tuple(self.feature_weight.tolist()))
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
@@ -269,8 +271,8 @@ class AssociativeNetwork(nn.Module):
             address a), its share, every output's share, and every unit's activation.
         """
         with one_thread():
-            x = torch.from_numpy(np.asarray(features, np.float32).reshape(1, FEATURE_DIM))
-            k = torch.from_numpy(np.asarray(known, bool).reshape(1, FEATURE_DIM))
+            x = torch.from_numpy(np.asarray(features, np.float32).reshape(1, self.dim))
+            k = torch.from_numpy(np.asarray(known, bool).reshape(1, self.dim))
             d2 = self.unit_distances(x, k)
             gain = torch.exp(self.log_gain)
             addresses = -0.5 * gain * self.address_distances(d2) + self.bias
@@ -283,8 +285,8 @@ class AssociativeNetwork(nn.Module):
     def shares(self, features: np.ndarray, known: np.ndarray) -> np.ndarray:
         """Softmax shares of every output for many patterns, (n, 1 + n_addresses)."""
         with one_thread():
-            x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, FEATURE_DIM))
-            k = torch.from_numpy(np.asarray(known, bool).reshape(-1, FEATURE_DIM))
+            x = torch.from_numpy(np.asarray(features, np.float32).reshape(-1, self.dim))
+            k = torch.from_numpy(np.asarray(known, bool).reshape(-1, self.dim))
             return torch.softmax(self(x, k), dim=1).numpy()
 
 
@@ -329,8 +331,8 @@ def train_replay(
 
     Args:
         network: The network to train in place.
-        exemplars: (n, FEATURE_DIM) stored looks (the units' stored values).
-        known: (n, FEATURE_DIM) their known masks.
+        exemplars: (n, dim) stored looks (the units' stored values).
+        known: (n, dim) their known masks.
         addresses: (n,) address of each look.
         focus: Address to oversample (the newest); -1 for none.
         config: Training parameters and the calibration.
@@ -348,13 +350,15 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
                   rng: np.random.Generator) -> int:
     x_all = np.asarray(exemplars, np.float32)
     k_all = np.asarray(known, bool)
+    dim = x_all.shape[1]
     # A look with too few known features can never answer (its unit is silent): it is
     # neither replayed nor checked, else training would bend every weight to recall it.
     usable = np.flatnonzero(k_all.sum(axis=1) >= config.min_common_features)
     if usable.size == 0:
         return 0
     focus_idx = usable[addresses[usable] == focus]
-    maskable = np.array([name in config.maskable_features for name in FEATURE_NAMES])
+    maskable = np.array([name in config.maskable_features
+                         for name in feature_names(config.features)])
     y_all = np.asarray(addresses, np.int64) + 1
     prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
     prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
@@ -372,16 +376,20 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
             idx = np.concatenate([
                 rng.choice(focus_idx, n_focus) if n_focus else np.zeros(0, np.int64),
                 rng.choice(usable, n_repeat - n_focus)])
-            noise = student_t_noise(rng, (len(idx), FEATURE_DIM), config.noise_dof) * sigma
+            noise = student_t_noise(rng, (len(idx), dim), config.noise_dof) * sigma
             x = x_all[idx] + noise
-            drop = maskable & (rng.random((len(idx), FEATURE_DIM)) < config.unknown_feature_prob)
+            # The maskable features (what touch measures) turn unknown together, as they
+            # become known together: one draw per sample, W's column (the paper mode's
+            # draws unchanged).
+            draw = rng.random((len(idx), dim))[:, WEIGHT_INDEX:WEIGHT_INDEX + 1]
+            drop = maskable & (draw < config.unknown_feature_prob)
             k = k_all[idx] & ~drop
             k = np.where((k.sum(axis=1) >= config.min_common_features)[:, None], k, k_all[idx])
             y = y_all[idx]
             if n_novel:
                 nov = rng.choice(usable, n_novel)
                 kn = k_all[nov]
-                direction = rng.standard_normal((n_novel, FEATURE_DIM)) * kn
+                direction = rng.standard_normal((n_novel, dim)) * kn
                 norm = np.sqrt((weight * direction ** 2).sum(axis=1)
                                / np.maximum((weight * kn).sum(axis=1), 1e-9))
                 radius = config.identify_distance * rng.uniform(

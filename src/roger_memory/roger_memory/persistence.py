@@ -29,7 +29,7 @@ import numpy as np
 
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import MemoryFileError
-from roger_common.types import FEATURE_DIM, FEATURE_NAMES
+from roger_common.types import FeatureMode, feature_names
 
 #: First bytes of every long-term-memory file.
 MAGIC: bytes = b"ROGERMEM"
@@ -48,8 +48,9 @@ class MemorySnapshot:
         config: MemoryConfig.to_dict() of the memory that was saved.
         seed: Seed of the memory (retraining after a load stays reproducible).
         n_addresses: Number of long-term-memory addresses (network output units).
-        exemplars: (n, FEATURE_DIM) float32 stored feature vectors.
-        known: (n, FEATURE_DIM) bool known masks of the exemplars.
+        exemplars: (n, F) float32 stored feature vectors (F: the length of the feature
+            mode ``config["features"]``; a file without that key is of the paper's mode).
+        known: (n, F) bool known masks of the exemplars.
         addresses: (n,) int64 address of each exemplar.
         weights: Network state_dict as numpy arrays, by parameter name.
         stored: (n,) bool: the look came with the store of its address (False: added by
@@ -70,6 +71,15 @@ class MemorySnapshot:
             self.stored = np.ones(len(self.addresses), bool)
 
 
+def snapshot_mode(config: dict[str, Any]) -> FeatureMode:
+    """The feature mode of a saved memory's configuration (files from before the modes
+    carry no ``features`` key: the paper's eleven)."""
+    try:
+        return FeatureMode.parse(config.get("features", FeatureMode.PAPER.value))
+    except ValueError as exc:
+        raise MemoryFileError(f"memory configuration: {exc}") from None
+
+
 def encode_snapshot(snapshot: MemorySnapshot) -> bytes:
     """Serialise a snapshot to the bytes of a memory file."""
     buf = io.BytesIO()
@@ -84,7 +94,7 @@ def encode_snapshot(snapshot: MemorySnapshot) -> bytes:
     payload = buf.getvalue()
     header = json.dumps({
         "format": "roger_memory",
-        "feature_names": list(FEATURE_NAMES),
+        "feature_names": list(feature_names(snapshot_mode(snapshot.config))),
         "config": snapshot.config,
         "seed": int(snapshot.seed),
         "n_addresses": int(snapshot.n_addresses),
@@ -133,8 +143,15 @@ def decode_snapshot(data: bytes, source: str = "<bytes>") -> MemorySnapshot:
               f"the header says {expected_len}")
     if hashlib.sha256(payload).hexdigest() != digest:
         _fail(source, "corrupt: payload checksum does not match")
-    if names != list(FEATURE_NAMES):
-        _fail(source, f"incompatible feature layout {names}, expected {list(FEATURE_NAMES)}")
+    modes = [m for m in FeatureMode if names == list(feature_names(m))]
+    if not modes:
+        _fail(source, f"incompatible feature layout {names}, expected one of "
+              + "; ".join(f"{m.value}: {list(feature_names(m))}" for m in FeatureMode))
+    if snapshot_mode(config) is not modes[0]:
+        _fail(source, f"its features {names} are not those of its configuration's mode "
+              f"{config.get('features')!r}")
+    config["features"] = modes[0].value
+    dim = len(names)
     try:
         with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
@@ -145,7 +162,7 @@ def decode_snapshot(data: bytes, source: str = "<bytes>") -> MemorySnapshot:
     except (ValueError, KeyError, OSError, zipfile.BadZipFile) as exc:
         _fail(source, f"corrupt payload ({exc})")
     n = len(addresses)
-    if (exemplars.shape != (n, FEATURE_DIM) or known.shape != (n, FEATURE_DIM)
+    if (exemplars.shape != (n, dim) or known.shape != (n, dim)
             or stored.shape != (n,)):
         _fail(source, f"incompatible exemplar shapes {exemplars.shape} / {known.shape}")
     if n and (addresses.min() < 0 or addresses.max() >= n_addresses):

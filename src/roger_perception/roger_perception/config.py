@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 
 from roger_common.errors import ConfigError
+from roger_common.types import DEFAULT_FEATURE_MODE, FeatureMode
 
 
 def _fail(name: str, value: object, need: str) -> ConfigError:
@@ -106,6 +107,8 @@ class PerceptionConfig:
             motion is measured (pixel noise, sub-pixel re-projection error); 0: none.
         motion_min_evidence: Share of a ROI's pixels the previous left eye must have seen
             for its motion to be measured; below it the motion is 0 (no evidence).
+        features: Feature mode: "paper" (the eleven features of equations 1-5) or
+            "extended" (those, then the shape evidence of ``shape.py``).
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -152,8 +155,13 @@ class PerceptionConfig:
     motion_threshold: float = 0.03
     motion_blur_px: float = 1.0
     motion_min_evidence: float = 0.5
+    features: str = DEFAULT_FEATURE_MODE.value
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "features", FeatureMode.parse(self.features).value)
+        except (ValueError, TypeError) as exc:
+            raise _fail("features", self.features, str(exc)) from None
         sig = tuple(self.log_sigmas)
         if len(sig) != 3 or not all(_finite(s) and s > 0 for s in sig):
             raise _fail("log_sigmas", self.log_sigmas, "need three positive sigmas (pixels)")
@@ -229,6 +237,11 @@ class PerceptionConfig:
     def activation_weights(self) -> tuple[float, ...]:
         """Weights of (size, intensity, motion, tactile, unmapped)."""
         return tuple(float(getattr(self, n)) for n in self.weight_names())
+
+    @property
+    def feature_mode(self) -> FeatureMode:
+        """``features`` as the enum."""
+        return FeatureMode(self.features)
 
     def kernel_sizes(self) -> tuple[int, int, int]:
         """LoG kernel diameters (pixels, odd) of the resolutions k = 1, 2, 3."""

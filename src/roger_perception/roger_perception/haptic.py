@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from roger_common.types import HapticReading
+from roger_perception.shape import tactile_shape
 
 
 class HapticMemory:
@@ -32,6 +33,7 @@ class HapticMemory:
         self.radius = float(radius)
         self._positions: list[np.ndarray] = []
         self._weights: list[float] = []
+        self._touch: list[tuple[float, float, float] | None] = []
 
     def __len__(self) -> int:
         return len(self._weights)
@@ -53,13 +55,16 @@ class HapticMemory:
             inside = np.flatnonzero(d <= reach)
             if inside.size:
                 pos = rois[inside[np.argmin(d[inside])]]
+        touch = tactile_shape(reading.contacts)
         i = self._nearest(pos)
         if i is not None:
             self._positions[i] = pos
             self._weights[i] = float(reading.weight)
+            self._touch[i] = touch
         else:
             self._positions.append(pos)
             self._weights.append(float(reading.weight))
+            self._touch.append(touch)
         return True
 
     def weight_near(self, position: Sequence[float]) -> float | None:
@@ -67,10 +72,17 @@ class HapticMemory:
         i = self._nearest(np.asarray(position, float))
         return None if i is None else self._weights[i]
 
+    def touch_near(self, position: Sequence[float]) -> tuple[float, float, float] | None:
+        """TH, TC, TR (``shape.tactile_shape``) of the nearest reading within the radius;
+        None without one, or when that reading's touches were not reported."""
+        i = self._nearest(np.asarray(position, float))
+        return None if i is None else self._touch[i]
+
     def clear(self) -> None:
         """Forget every reading."""
         self._positions.clear()
         self._weights.clear()
+        self._touch.clear()
 
     def _nearest(self, pos: np.ndarray) -> int | None:
         if not self._positions:

@@ -19,13 +19,22 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 
 from roger_common.errors import MessageError
 from roger_common.geometry import project_point
-from roger_common.types import SIZE_INDEX, WEIGHT_INDEX, CameraModel, Roi, StereoFrame
+from roger_common.types import (
+    SHAPE_FEATURE_NAMES,
+    SIZE_INDEX,
+    WEIGHT_INDEX,
+    CameraModel,
+    FeatureMode,
+    Roi,
+    StereoFrame,
+)
 from roger_perception.activation import (
     MotionView,
     is_mapped,
@@ -51,6 +60,7 @@ from roger_perception.features import (
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
+from roger_perception.shape import shading, visual_features, visual_shape
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities_batch,
@@ -219,6 +229,8 @@ class Perception:
                 # Its silhouette is cut by a nearer object: its extent is not the object's.
                 known[SIZE_INDEX] = False
                 feats[SIZE_INDEX] = 0.0
+            if self.config.feature_mode is FeatureMode.EXTENDED:
+                feats, known = self._extend(feats, known, frame, obj.blob, position)
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
             motion = motions[roi_id]
@@ -240,6 +252,36 @@ class Perception:
         self.last_roi_labels = roi_labels
         self.last_timings = timings
         return rois
+
+
+    def _extend(self, feats: np.ndarray, known: np.ndarray, frame: StereoFrame, blob: Any,
+                position: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """The paper's eleven features followed by the shape evidence of ``shape.py``.
+
+        The visual ones are unknown where D is (a silhouette cut by the retina's edge or a
+        nearer object: its extents are not the object's); H only where the whole of I-D
+        is unknown (too little of the outline is its own). The touch ones are known where
+        a haptic reading with tactile contacts lies near, like W.
+        """
+        extra = np.zeros(len(SHAPE_FEATURE_NAMES), np.float32)
+        extra_known = np.zeros(len(SHAPE_FEATURE_NAMES), bool)
+        if known[SIZE_INDEX] or known[0]:
+            z_over, ratio, reach = visual_shape(blob.mask, blob.bbox, frame.camera,
+                                                frame.left_pose, position)
+            values = visual_features(z_over, ratio, reach,
+                                     shading(frame.left, blob.mask, blob.bbox))
+            whole = bool(known[SIZE_INDEX])
+            usable = (bool(known[0]), whole, whole, bool(known[0]))
+            for i, (v, ok) in enumerate(zip(values, usable, strict=True)):
+                if ok and math.isfinite(v):
+                    extra[i], extra_known[i] = v, True
+        touch = self.haptic_memory.touch_near(position)
+        if touch is not None:
+            # The touch features come last (TOUCH_FEATURE_NAMES less W).
+            extra[-len(touch):] = touch
+            extra_known[-len(touch):] = True
+        return (np.concatenate([feats, extra]).astype(np.float32),
+                np.concatenate([known, extra_known]))
 
 
 @dataclass(frozen=True)

@@ -144,7 +144,8 @@ class PerceptionNode(Node):
                             exposures=int(geometry.exposures),
                             haptic=self._haptic.pop(int(geometry.goal_id), None))
         rois = self.perception.process(frame, self._mapped)
-        self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id))
+        self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id,
+                                                 self.perception.config.features))
 
 
 def main(args: list[str] | None = None) -> None:

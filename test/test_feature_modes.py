@@ -1,0 +1,104 @@
+"""The two feature modes: the paper's eleven features stay what they were, bit for bit, and
+the extended mode appends the shape evidence (docs/perception.md, "Extended features").
+
+test/data/paper_features.npz holds eight stereo frames of worlds/shapes.yaml (simulator seed
+3: an attention shift and a haptic improvement on each of four objects) and the eleven
+features of every ROI of them as perception computed them before the modes existed (commit
+487cef8, run on these frames).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roger_common.types import (
+    FEATURE_NAMES,
+    SHAPE_FEATURE_NAMES,
+    CameraModel,
+    EyePose,
+    FeatureMode,
+    HapticReading,
+    StereoFrame,
+    feature_dim,
+    feature_names,
+    mode_of_dim,
+)
+from roger_perception.config import PerceptionConfig
+from roger_perception.perception import Perception
+from roger_perception.shape import H_MAX_M
+
+DATA = Path(__file__).parent / "data" / "paper_features.npz"
+
+
+def _frames() -> list[StereoFrame]:
+    d = np.load(DATA)
+    w, h, focal = d["camera"]
+    camera = CameraModel(int(w), int(h), float(focal))
+    frames = []
+    for i in range(len(d["left"])):
+        hp = d["haptic"][i]
+        haptic = None if math.isnan(hp[0]) else HapticReading(
+            int(hp[0]), bool(hp[1]), tuple(float(v) for v in hp[2:5]), float(hp[5]))
+        frames.append(StereoFrame(float(d["stamp"][i]), int(d["goal_id"][i]), d["left"][i],
+                                  d["right"][i], camera, EyePose(d["lpos"][i], d["lrot"][i]),
+                                  EyePose(d["rpos"][i], d["rrot"][i]), int(d["exposures"][i]),
+                                  haptic))
+    return frames
+
+
+def _features(mode: str) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    perception = Perception(PerceptionConfig(features=mode))
+    feats, known, counts = [], [], []
+    for frame in _frames():
+        rois = perception.process(frame)
+        counts.append(len(rois))
+        feats += [r.features for r in rois]
+        known += [r.known for r in rois]
+    return np.stack(feats), np.stack(known), counts
+
+
+def test_the_paper_mode_gives_the_recorded_eleven_features_bit_for_bit() -> None:
+    d = np.load(DATA)
+    for mode in ("paper", "extended"):
+        feats, known, counts = _features(mode)
+        assert counts == d["rois_per_frame"].tolist(), mode
+        assert feats.shape == (len(d["paper_features"]), feature_dim(mode))
+        # The eleven of equations 1-5 do not change with the mode, to the bit.
+        assert np.array_equal(feats[:, :len(FEATURE_NAMES)], d["paper_features"]), mode
+        assert np.array_equal(known[:, :len(FEATURE_NAMES)], d["paper_known"]), mode
+
+
+def test_the_extended_mode_appends_the_shape_evidence() -> None:
+    feats, known, _ = _features("extended")
+    extra = feats[:, len(FEATURE_NAMES):]
+    extra_known = known[:, len(FEATURE_NAMES):]
+    assert extra.shape[1] == len(SHAPE_FEATURE_NAMES)
+    assert np.all((extra >= 0) & (extra <= 1)) and np.all(extra[~extra_known] == 0)
+    h = list(SHAPE_FEATURE_NAMES).index("H")
+    # Every ROI whose outline is its own (I known) has a height; shapes.yaml's objects
+    # stand 0.17-0.2 m tall, read (shape.py) at most their top's far rim above the top.
+    seen = known[:, 0]
+    assert extra_known[seen, h].all()
+    z = extra[seen, h] * H_MAX_M
+    assert np.all((z > 0.12) & (z < 0.40)), z
+
+
+@pytest.mark.parametrize("mode", list(FeatureMode))
+def test_each_mode_names_its_layout(mode: FeatureMode) -> None:
+    names = feature_names(mode)
+    assert names[:len(FEATURE_NAMES)] == FEATURE_NAMES
+    assert mode_of_dim(len(names)) is mode
+    assert FeatureMode.parse(mode.value) is mode
+
+
+def test_an_unknown_mode_is_refused_naming_the_choices() -> None:
+    with pytest.raises(ValueError, match="paper.*extended"):
+        FeatureMode.parse("fancy")
+    with pytest.raises(Exception, match="PerceptionConfig.features"):
+        PerceptionConfig(features="fancy")
+    with pytest.raises(ValueError, match="12 features"):
+        mode_of_dim(12)
