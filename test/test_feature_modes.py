@@ -102,3 +102,17 @@ def test_an_unknown_mode_is_refused_naming_the_choices() -> None:
         PerceptionConfig(features="fancy")
     with pytest.raises(ValueError, match="12 features"):
         mode_of_dim(12)
+
+
+def test_touch_reads_the_top_height_and_the_steepest_slope() -> None:
+    from roger_common.types import TactileContact
+    from roger_perception.shape import tactile_shape
+    flat = [TactileContact((0.6, 0.0, 0.12), (0.0, 0.0, 1.0)),
+            TactileContact((0.64, 0.0, 0.121), (0.0, 0.0, 1.0), (0.04, 0.0))]
+    th, ts = tactile_shape(flat)
+    assert th == pytest.approx(0.121 / H_MAX_M) and ts == pytest.approx(0.0, abs=1e-6)
+    tilt = np.radians(60.0)
+    flank = TactileContact((0.63, 0.0, 0.07), (np.sin(tilt), 0.0, np.cos(tilt)), (0.04, 0.0))
+    th, ts = tactile_shape([flat[0], flank])
+    assert th == pytest.approx(0.12 / H_MAX_M) and ts == pytest.approx(60 / 90, abs=1e-6)
+    assert tactile_shape([]) is None

@@ -229,3 +229,32 @@ def test_first_store_imports_nothing_new() -> None:
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=120, check=True).stdout.strip()
     assert out == "[]", out[:300]
+
+
+def test_the_z_cap_bounds_what_one_feature_adds_and_nothing_else() -> None:
+    """MemoryConfig.z_cap (the extended mode's robust distance): a look that agrees with a
+    unit in every feature but one, off by 20 scales there, lies within tau with the cap and
+    far beyond it without; a look off by 1 scale everywhere lies where it did."""
+    from roger_memory.calibration import rms_z
+    scale = np.full(FEATURE_DIM, 0.01)
+    weight = tuple([1.0] * FEATURE_DIM)
+    stored = np.full((1, FEATURE_DIM), 0.5, np.float32)
+    one_off = stored[0].copy()
+    one_off[3] += 20 * np.sqrt(2.0) * 0.01
+    everywhere = stored[0] + np.float32(np.sqrt(2.0) * 0.01)
+    known = np.ones((1, FEATURE_DIM), bool)
+    out = {}
+    for cap in (0.0, 3.0):
+        net = AssociativeNetwork(tuple(scale), 2.0, 6, weight, z_cap=cap)
+        net.add_address()
+        net.add_units(stored, known, 0)
+        x = torch.from_numpy(np.stack([one_off, everywhere]))
+        all_known = torch.from_numpy(np.ones((2, FEATURE_DIM), bool))
+        out[cap] = net.unit_distances(x, all_known).detach()
+        # The numpy distance of the memory and the calibration agrees with the network's.
+        d = rms_z(np.stack([one_off, everywhere]) - stored, np.ones((2, FEATURE_DIM), bool),
+                  scale, np.asarray(weight), cap)
+        np.testing.assert_allclose(out[cap][:, 0].numpy(), d ** 2, rtol=1e-4)
+    assert out[0.0][0, 0] == pytest.approx(400 / FEATURE_DIM, rel=1e-3)
+    assert out[3.0][0, 0] == pytest.approx(9 / FEATURE_DIM, rel=1e-3) and out[3.0][0, 0] < 4
+    assert out[3.0][1, 0] == pytest.approx(out[0.0][1, 0].item(), rel=1e-3)

@@ -87,7 +87,8 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     assert all(len(q.features) == feature_dim("extended") for q in rows)
     cal = calibrate(np.stack([q.features for q in rows]), np.stack([q.known for q in rows]),
                     np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
-                    np.array([q.entry for q in rows]))
+                    np.array([q.entry for q in rows]),
+                    z_cap=CALIBRATED[FeatureMode.EXTENDED].z_cap)
     ext = CALIBRATED[FeatureMode.EXTENDED]
     np.testing.assert_allclose(cal.feature_scale, ext.feature_scale, rtol=0.01, atol=5e-5)
     assert cal.identify_distance == pytest.approx(ext.identify_distance, abs=0.01)

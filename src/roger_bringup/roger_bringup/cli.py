@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 from roger_common.errors import RogerError
 
 if TYPE_CHECKING:
+    from roger_common.types import WorldSpec
+    from roger_experiments.compare import TrainedTable
     from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
@@ -165,7 +167,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     The Q-learning policy runs a trained Q-table, greedy and frozen: ``--qtable FILE``, or
     one ``roger train`` learns first (in process) on random worlds other than this one.
     """
-    from roger_experiments.compare import TrainedTable, compare
+    from roger_experiments.compare import TrainedTable
     from roger_experiments.train import RandomWorlds
     from roger_sim.world import load_world
 
@@ -189,6 +191,41 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if trained.world_seen:
         print(f"roger compare: warning: {args.world} is one of the worlds {qtable} was "
               "trained on", file=sys.stderr)
+    modes = [args.features] + [m for m in (getattr(args, "also_modes", None) or [])
+                               if m != args.features]
+    results = {}
+    for mode in modes:
+        out = args.out if mode == args.features else args.out / mode
+        if len(modes) > 1:
+            print(f"\nfeature mode {mode} -> {out}")
+        results[mode] = _compare_mode(args, world, seeds, qtable, trained, mode, out)
+        print()
+        print((out / "table2.md").read_text())
+        print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
+        for c in results[mode]["claims"]:
+            print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
+        c = results[mode]["completion"]
+        if c is not None:
+            print(f"  {c['verdict']:>26}: {c['claim']} ({c['every_object_visited']}/"
+                  f"{c['runs']} runs; the robot's rule ended {c['complete']}/{c['runs']})")
+    if len(modes) > 1:
+        from roger_common.atomic import atomic_write_bytes
+        from roger_experiments.compare import modes_markdown
+        side = modes_markdown(results, str(args.world))
+        atomic_write_bytes(args.out / "modes.md", side.encode())
+        report = args.out / "report.md"
+        atomic_write_bytes(report, (report.read_text() + "\n" + side).encode())
+        print(side)
+    print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
+          f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
+    return 0
+
+
+def _compare_mode(args: argparse.Namespace, world: WorldSpec, seeds: list[int], qtable: Path,
+                  trained: TrainedTable, features: str, out: Path) -> dict:
+    """Both policies, every seed, one feature mode, into ``out``: what ``compare`` returns."""
+    from roger_experiments.compare import compare
+
     stable = args.stable_cycles
     if args.in_process:
         from roger_experiments.core_loop import run_core
@@ -200,7 +237,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                    seed=seed, out=run_dir,
                                    stop_when_complete=stable if complete else 0,
                                    qtable_path=qtable if policy == "qlearning" else None,
-                                   learn=False, features=args.features)
+                                   learn=False, features=features)
             assert recorder is not None
             return recorder.close(time.monotonic() - t0)
     else:
@@ -212,28 +249,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 cycles=None if complete else args.cycles, until_complete=complete,
                 stable_cycles=stable, max_cycles=COMPLETE_MAX, seed=seed,
                 qtable=qtable if policy == "qlearning" else None, learn=False,
-                features=args.features, progress=not args.quiet))
+                features=features, progress=not args.quiet))
 
     def run_one(policy: str, seed: int, run_dir: Path) -> dict:
         return run(policy, seed, run_dir, False)
 
     def run_complete(policy: str, seed: int, run_dir: Path) -> dict:
         return run(policy, seed, run_dir, True)
-    result = compare(args.world, seeds, args.out, run_one, progress=not args.quiet,
-                     trained=trained,
-                     run_complete=run_complete if stable > 0 else None)
-    print()
-    print((args.out / "table2.md").read_text())
-    print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
-    for c in result["claims"]:
-        print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
-    c = result["completion"]
-    if c is not None:
-        print(f"  {c['verdict']:>26}: {c['claim']} ({c['every_object_visited']}/{c['runs']} "
-              f"runs; the robot's rule ended {c['complete']}/{c['runs']})")
-    print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
-          f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
-    return 0
+    return compare(args.world, seeds, out, run_one, progress=not args.quiet,
+                   trained=trained, run_complete=run_complete if stable > 0 else None)
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -319,6 +343,12 @@ def main(argv: list[str] | None = None) -> None:
                                 "'every object visited'; 0 skips those runs")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
         _add_features_arg(p_cmp)
+        p_cmp.add_argument("--also-modes", nargs="*", default=(
+            ["paper"] if name == "demo" else []), choices=("paper", "extended"),
+            metavar="MODE",
+            help="also run these feature modes (same seeds and Q-table) into OUT/MODE and "
+                 "put Table 2 and the claims side by side in OUT/modes.md and report.md "
+                 "(default: paper for demo, none for compare)")
         p_cmp.set_defaults(func=cmd_compare)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
     p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")

@@ -36,11 +36,11 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 #: the object's top, R the silhouette's height over its width, E how far the silhouette
 #: reaches above the top, G the shading of its surface (planar faces are flat, curved ones
 #: shade smoothly). From touch (unknown, like W, until a haptic improvement): TH the height
-#: of the top the hand touched, TC the top's curvature (how far the probe touches drop
-#: below the first), TR its ridge (how unequal the drops are in the probe directions).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "R", "E", "G", "TH", "TC", "TR")
+#: of the top the hand touched, TS the steepest slope it touched (the largest tilt of a
+#: contact normal from the vertical: 0 on a flat top, 60 degrees on a prism's flank).
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "R", "E", "G", "TH", "TS")
 #: The features a haptic improvement measures (unknown before one): W and touch's shape.
-TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TC", "TR")
+TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TS")
 
 
 class FeatureMode(str, Enum):

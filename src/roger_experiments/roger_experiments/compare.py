@@ -365,6 +365,50 @@ def report_markdown(table: dict[str, Any], claims: list[dict[str, Any]], world: 
     return "\n".join(lines)
 
 
+def modes_markdown(by_mode: dict[str, dict[str, Any]], world: str) -> str:
+    """Table 2 and the claims of several feature modes side by side (``roger demo``).
+
+    Args:
+        by_mode: Feature mode name -> what ``compare`` returned for it (table2, claims,
+            completion), in the order to show.
+        world: The evaluation world.
+    """
+    modes = list(by_mode)
+    names = {"qlearning": "Q-learning (1)", "straightforward": "simple (2)"}
+    lines = [f"## Feature modes side by side on `{world}`", "",
+             "The same world, seeds and Q-table; `paper` is the eleven features of "
+             "equations 1-5, `extended` adds shape from stereo and touch "
+             "(docs/perception.md, \"Extended features\"). Mean ± sd over seeds.", "",
+             "| approach | mode | " + " | ".join(c.replace("_", " ") for c in
+                                                 (*COLUMNS, *SCORES)) + " |",
+             "|" + "---|" * (2 + len(COLUMNS) + len(SCORES))]
+    for policy in POLICIES:
+        for mode in modes:
+            row = by_mode[mode]["table2"].get(policy)
+            if row is None:
+                continue
+            lines.append(f"| {names[policy]} | {mode} | "
+                         + " | ".join(_fmt(row[c]) for c in (*COLUMNS, *SCORES)) + " |")
+    lines += ["", "| claim | " + " | ".join(f"{m}: verdict (holds in)" for m in modes) + " |",
+              "|---|" + "---|" * len(modes)]
+    first = by_mode[modes[0]]["claims"]
+    for i, claim in enumerate(first):
+        cells = []
+        for mode in modes:
+            c = by_mode[mode]["claims"][i]
+            cells.append(f"{c['verdict']} ({c['holds_in']}/{c['seeds']})")
+        lines.append(f"| {claim['claim']} | " + " | ".join(cells) + " |")
+    if all(by_mode[m].get("completion") for m in modes):
+        cells = []
+        for mode in modes:
+            c = by_mode[mode]["completion"]
+            cells.append(f"{c['verdict']} ({c['every_object_visited']}/{c['runs']})")
+        lines.append(f"| {first and by_mode[modes[0]]['completion']['claim']} | "
+                     + " | ".join(cells) + " |")
+    lines.append("")
+    return "\n".join(lines)
+
+
 def write_outputs(out: Path, results: list[RunResult], world: str,
                   trained: TrainedTable | None = None,
                   complete_runs: list[RunResult] | None = None) -> dict[str, Any]:

@@ -77,7 +77,7 @@ class Calibration:
 
 
 def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
-          weight: np.ndarray | None = None) -> np.ndarray:
+          weight: np.ndarray | None = None, z_cap: float = 0.0) -> np.ndarray:
     """Weighted root-mean-square z over the common features:
     sqrt(sum_f w_f z_f^2 / sum_f w_f), z_f = delta_f / (sqrt(2) scale_f).
 
@@ -86,13 +86,17 @@ def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
         common: (n, F) features known in both.
         scale: (F,) spread of one look.
         weight: (F,) weight of each feature (None: all 1, the plain RMS).
+        z_cap: When > 0, each |z_f| counts at most this much (MemoryConfig.z_cap).
 
     Returns:
         (n,) distances; inf where no feature of positive weight is common.
     """
     w = np.ones(delta.shape[1]) if weight is None else np.asarray(weight, np.float64)
     cw = common * w
-    z2 = (delta / (np.sqrt(2.0) * scale)) ** 2 * cw
+    z2 = (delta / (np.sqrt(2.0) * scale)) ** 2
+    if z_cap > 0:
+        z2 = np.minimum(z2, z_cap * z_cap)
+    z2 = z2 * cw
     n = cw.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, np.sqrt(z2.sum(axis=1) / np.where(n > 0, n, 1.0)), np.inf)
@@ -162,7 +166,7 @@ def student_t_dof(distance: float, quantile: float, dims: int, seed: int = 0,
 def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
               identify_quantile: float = 0.95, veto_quantile: float = 0.999,
               outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
-              max_pairs: int = 400_000, seed: int = 0) -> Calibration:
+              max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -182,6 +186,9 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         min_common: Pairs with fewer common known features are not used for the distance.
         max_pairs: Pairs kept per kind (a seeded subsample beyond that).
         seed: Seed of the subsample.
+        z_cap: The memory's cap of one feature's |z| (MemoryConfig.z_cap; 0: none): the
+            acceptance distance and the veto's repeats are measured with the distance the
+            memory will use.
 
     Returns:
         The Calibration.
@@ -238,7 +245,7 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
     weight = information_weight(between_scale, scale)
     n_common = c0.sum(axis=1)
-    own = rms_z(d0, c0, entry_scale, weight)[n_common >= min_common]
+    own = rms_z(d0, c0, entry_scale, weight, z_cap)[n_common >= min_common]
     identify_distance = float(np.quantile(own, identify_quantile))
     # The Student-t of the replay noise: as many independent features as the weights
     # leave effective, (sum w)^2 / sum w^2 over all features.
@@ -256,7 +263,7 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]
-                  & (rms_z(d0, others, entry_scale, weight) <= identify_distance))
+                  & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
         veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
                    * scale[f] / entry_scale[f])
     return Calibration(feature_scale=scale, feature_weight=weight,

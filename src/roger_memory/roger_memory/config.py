@@ -45,19 +45,22 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02468, 0.03949, 0.05105, 0.00497, 0.00555, 0.00484,
-    0.02567, 0.02206, 0.02232, 0.00422, 0.01055, 0.03215,
-    0.02917, 0.04508, 0.05619, 0.00170, 0.01070, 0.01353)
+    0.02529, 0.03995, 0.05129, 0.00493, 0.00554, 0.00481,
+    0.02507, 0.02169, 0.02210, 0.00423, 0.01055, 0.03058,
+    0.02925, 0.04473, 0.05670, 0.00146, 0.01362)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.815, 1.343, 1.066, 0.683, 0.511, 0.658,
-    0.663, 0.578, 0.159, 2.130, 3.517, 0.511,
-    0.979, 0.335, 0.638, 0.794, 0.798, 0.823)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.24
+    1.685, 1.254, 1.000, 0.653, 0.484, 0.626,
+    0.652, 0.564, 0.161, 2.008, 3.319, 0.538,
+    0.921, 0.325, 0.592, 0.767, 1.451)
+EXTENDED_IDENTIFY_DISTANCE: float = 1.80
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1353, 0.2629, 0.3488, 0.0387, 0.0445, 0.0359,
-    0.2378, 0.1926, 0.2378, 0.0313, 0.0402, 0.2273,
-    0.3835, 0.6351, 0.7994, 0.0090, 0.1219, 0.3046)
-EXTENDED_NOISE_DOF: float = 4.69
+    0.1413, 0.2635, 0.3477, 0.0382, 0.0446, 0.0359,
+    0.2322, 0.1894, 0.2422, 0.0313, 0.0403, 0.2425,
+    0.4091, 0.6149, 0.8072, 0.0090, 0.8247)
+EXTENDED_NOISE_DOF: float = 8.32
+#: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
+#: a design choice, not a measurement (docs/memory.md, "A robust distance").
+EXTENDED_Z_CAP: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -70,16 +73,18 @@ class Calibrated:
     veto: tuple[float, ...]
     noise_dof: float
     maskable_features: tuple[str, ...]
+    z_cap: float
 
 
 #: The calibrated defaults of each feature mode.
 CALIBRATED: dict[FeatureMode, Calibrated] = {
     FeatureMode.PAPER: Calibrated(CALIBRATED_FEATURE_SCALE, CALIBRATED_FEATURE_WEIGHT,
                                   CALIBRATED_IDENTIFY_DISTANCE, CALIBRATED_VETO,
-                                  CALIBRATED_NOISE_DOF, ("W",)),
+                                  CALIBRATED_NOISE_DOF, ("W",), 0.0),
     FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
                                      EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
-                                     EXTENDED_NOISE_DOF, TOUCH_FEATURE_NAMES),
+                                     EXTENDED_NOISE_DOF, TOUCH_FEATURE_NAMES,
+                                     EXTENDED_Z_CAP),
 }
 _DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]
 
@@ -140,6 +145,11 @@ class MemoryConfig:
             in ``maskable_features`` turned unknown, so that the network also answers
             before a haptic improvement.
         maskable_features: Features that may be unknown at match time (FEATURE_NAMES).
+        z_cap: When > 0, each feature's |z_f| counts at most this much in every distance
+            (the units' activation, the store's and refinement's acceptance, the
+            calibration's): one feature that varies with the view more than the calibrated
+            scale says (a prism's shading at another yaw) cannot reject a look alone; the
+            veto still can. 0: the plain weighted RMS (the paper mode's).
     """
 
     features: str = field(default=DEFAULT_FEATURE_MODE.value, metadata={
@@ -187,6 +197,8 @@ class MemoryConfig:
         "doc": "Probability that a replayed maskable feature is made unknown"})
     maskable_features: tuple[str, ...] = field(default=_DEFAULT.maskable_features, metadata={
         "doc": "Features that may be unknown at match time (names of the mode's features)"})
+    z_cap: float = field(default=_DEFAULT.z_cap, metadata={
+        "doc": "Largest |z| one feature adds to a distance (0: no cap, the paper mode)"})
 
     def __post_init__(self) -> None:
         try:
@@ -215,6 +227,7 @@ class MemoryConfig:
             _fail("feature_weight", self.feature_weight, "not every weight 0")
         _positive("identify_distance", self.identify_distance)
         _positive("noise_dof", self.noise_dof)
+        _non_negative("z_cap", self.z_cap)
         _positive_int("min_common_features", self.min_common_features)
         if self.min_common_features > len(names):
             _fail("min_common_features", self.min_common_features, f"<= {len(names)}")

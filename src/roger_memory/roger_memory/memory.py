@@ -119,7 +119,8 @@ class AssociativeMemory:
         self._addresses = np.zeros(0, np.int64)
         self._stored = np.zeros(0, bool)
         self._network = AssociativeNetwork(config.feature_scale, config.identify_distance,
-                                           config.min_common_features, config.feature_weight)
+                                           config.min_common_features, config.feature_weight,
+                                           config.z_cap)
         self._network.eval()
         self._focus_id = 0
         self._focus_looks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -197,7 +198,8 @@ class AssociativeMemory:
         """
         x, k = _validate(features, known, self._dim, self._config.features)
         d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
-                   self._config.min_common_features, self._config.feature_weight)
+                   self._config.min_common_features, self._config.feature_weight,
+                   self._config.z_cap)
         out = np.full(self.size, np.inf)
         np.minimum.at(out, self._addresses, d)
         return out
@@ -451,7 +453,7 @@ class AssociativeMemory:
             # edge). One copy is kept.
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
-                       self._config.feature_weight)[0]
+                       self._config.feature_weight, self._config.z_cap)[0]
             if d <= self._config.identify_distance and not any(
                     np.array_equal(ck, ok) and np.array_equal(cx, ox)
                     for ox, ok in (*kept, (x, k))):
@@ -485,7 +487,8 @@ class AssociativeMemory:
                 break
             if self.find_exact(fx, fk) is not None:
                 continue
-            d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features, cfg.feature_weight)
+            d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features, cfg.feature_weight,
+                       cfg.z_cap)
             if d.size and d.min() <= cfg.identify_distance:
                 self._append(address, fx[None], fk[None], stored=False)
                 added += 1
@@ -522,13 +525,13 @@ class AssociativeMemory:
 
 
 def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: np.ndarray,
-           min_common: int, weight: tuple[float, ...]) -> np.ndarray:
+           min_common: int, weight: tuple[float, ...], z_cap: float = 0.0) -> np.ndarray:
     """Weighted RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2)
     scale_f): sqrt(sum w_f z_f^2 / sum w_f); inf with fewer than ``min_common`` common
     features (or none of positive weight)."""
     common = ks & k
     n = common.sum(axis=1)
-    d = rms_z(xs - x, common, scale, np.asarray(weight))
+    d = rms_z(xs - x, common, scale, np.asarray(weight), z_cap)
     return np.where(n >= min_common, d, np.inf)
 
 

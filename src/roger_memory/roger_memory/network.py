@@ -120,9 +120,12 @@ class AssociativeNetwork(nn.Module):
 
     def __init__(self, feature_scale: tuple[float, ...], identify_distance: float,
                  min_common_features: int,
-                 feature_weight: tuple[float, ...] | None = None) -> None:
+                 feature_weight: tuple[float, ...] | None = None,
+                 z_cap: float = 0.0) -> None:
         super().__init__()
         self.min_common_features = int(min_common_features)
+        #: Largest |z| one feature contributes (MemoryConfig.z_cap; 0: none).
+        self.z_cap = float(z_cap)
         #: Length of the feature vectors (the mode's, ``roger_common.types.feature_dim``).
         self.dim = len(feature_scale)
         weight = [1.0] * self.dim if feature_weight is None else list(feature_weight)
@@ -213,7 +216,7 @@ class AssociativeNetwork(nn.Module):
         centres drawn uniformly in the feature range, scales, tau and gain drawn around 1,
         biases around 0. The units keep their known masks and addresses (the shape)."""
         net = AssociativeNetwork(tuple([1.0] * self.dim), 1.0, self.min_common_features,
-                                 tuple(self.feature_weight.tolist()))
+                                 tuple(self.feature_weight.tolist()), self.z_cap)
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
         net.unit_address = self.unit_address.clone()
@@ -238,8 +241,16 @@ class AssociativeNetwork(nn.Module):
         kf = k.to(x.dtype)
         m = self.unit_known.to(x.dtype)
         c = self.centres * m
-        kx = kf * x
-        sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
+        if self.z_cap > 0:
+            # Each feature's z^2 capped (a robust distance): one feature per pair of
+            # inputs and units, since the cap does not factor into products.
+            z2 = (x[:, None, :] - c[None, :, :]) ** 2 * (0.5 * torch.exp(-2.0 * self.log_scale))
+            z2 = z2.clamp_max(self.z_cap * self.z_cap)
+            common = kf[:, None, :] * m[None, :, :]
+            sq = (z2 * common * self.feature_weight).sum(dim=2)
+        else:
+            kx = kf * x
+            sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
         n = kf @ m.T
         wn = (kf * self.feature_weight) @ m.T
         d2 = sq.clamp_min(0.0) / wn.clamp_min(1e-6)

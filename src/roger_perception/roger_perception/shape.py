@@ -34,14 +34,14 @@ Touch (after a haptic improvement, like W; from the tactile sensor's contact poi
 normals of the first touch and its probe touches, ``HapticReading.contacts``):
 
 * ``TH``: height of the highest contact point: the top's height, felt.
-* ``TC``: curvature of the top: the mean drop of the probe contacts below the first,
-  over the probe's horizontal offset (a probe that found nothing within its reach counts
-  as a drop of its offset). 0 on a flat top (box, cylinder), positive on a dome (sphere),
-  large on a ridge (prism).
-* ``TR``: ridge: the largest minus the smallest of those drops over the offset. A ridge
-  drops steeply across and not at all along; a dome drops alike in every direction.
-  Neither depends on the object's yaw as much as on the set of directions probed: the
-  sorted drops are what a ridge and a dome differ in.
+* ``TS``: the steepest slope touched: the largest angle between a contact's surface normal
+  and the vertical, over 90 degrees. A box's or a cylinder's top is flat (0); a sphere's
+  dome tilts by asin(offset / radius) where the probes land (20-35 degrees for a 10 cm
+  sphere); a prism's flanks are 60 degrees steep wherever they are touched, and of three
+  probe directions 120 degrees apart one always crosses the ridge, whatever the yaw. The
+  drops of the probe contacts below the first were tried first: on a prism they depend
+  on where the first touch landed beside the ridge (between copies they differed by 20
+  category scales), so they are not used.
 
 Each value is normalised to [0, 1] (clipped) by the constants below, like equations 4-5.
 Pure numpy; no ROS.
@@ -66,8 +66,6 @@ RATIO_MAX: float = 2.0
 #: G is divided by this: the relative gradient of a curved surface of Roger's worlds stays
 #: below 0.15 per pixel.
 G_MAX: float = 0.2
-#: A probe drop of this many probe offsets reads TC = 1 (a slope of 60 degrees: a prism).
-DROP_MAX: float = math.sqrt(3.0)
 
 
 def _ray(camera: CameraModel, pose: EyePose, u: float, v: float) -> np.ndarray:
@@ -162,35 +160,22 @@ def visual_features(z_over: float, ratio: float, reach: float, grad: float
             _unit(grad / G_MAX))
 
 
-def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float, float] | None:
-    """TH, TC and TR from one haptic improvement's touches, normalised to [0, 1].
-
-    A probe direction that felt nothing (it went past the object's edge) leaves no contact:
-    only felt probes count.
+def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float] | None:
+    """TH and TS from one haptic improvement's touches, normalised to [0, 1].
 
     Args:
         contacts: The touches, first one first (``HapticReading.contacts``).
 
     Returns:
-        (TH, TC, TR), or None without a first touch. With no probe touch, TC and TR are 0
-        (nothing seen to drop).
+        (TH, TS), or None without a touch.
     """
     if not contacts:
         return None
-    first = contacts[0]
     top = max(c.point[2] for c in contacts)
-    drops = []
-    for c in contacts[1:]:
-        offset = math.hypot(*c.probe)
-        if offset <= 1e-6:
-            continue
-        drops.append(max(0.0, first.point[2] - c.point[2]) / offset)
-    if drops:
-        curvature = float(np.mean(drops)) / DROP_MAX
-        ridge = (max(drops) - min(drops)) / DROP_MAX
-    else:
-        curvature = ridge = 0.0
-    return _unit(top / H_MAX_M), _unit(curvature), _unit(ridge)
+    steepest = max(math.acos(max(-1.0, min(1.0, c.normal[2] / max(math.hypot(*c.normal),
+                                                                   1e-12))))
+                   for c in contacts)
+    return _unit(top / H_MAX_M), _unit(steepest / (math.pi / 2.0))
 
 
 def _unit(x: float) -> float:

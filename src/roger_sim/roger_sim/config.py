@@ -61,6 +61,9 @@ class SimConfig:
         probe_depth_m: How far below the first touch a probe comes down before it counts
             as fallen off the object, metres.
         tactile_noise_m: Std of the Gaussian noise of a tactile contact point, metres.
+        tactile_normal_noise_rad: Std of the Gaussian noise added to each component of a
+            tactile contact's unit normal before it is normalised again (about that many
+            radians of tilt per axis).
     """
 
     image_size: int = 128
@@ -96,6 +99,7 @@ class SimConfig:
     probe_rise_m: float = 0.03
     probe_depth_m: float = 0.08
     tactile_noise_m: float = 0.001
+    tactile_normal_noise_rad: float = 0.03
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -152,6 +156,8 @@ class SimConfig:
                "in (0, 0.5] m")
         _check("tactile_noise_m", self.tactile_noise_m, 0.0 <= self.tactile_noise_m <= 0.05,
                "in [0, 0.05] m")
+        _check("tactile_normal_noise_rad", self.tactile_normal_noise_rad,
+               0.0 <= self.tactile_normal_noise_rad <= 0.5, "in [0, 0.5] rad")
 
     @property
     def focal_px(self) -> float:

@@ -35,8 +35,10 @@ On a convex top, touched first at its highest point, nothing lies in the way.
 Shape from touch: every touch (the first and each probe that touched) is one
 :class:`TactileContact`, what a tactile sensor on the fingertip reports: the contact point
 on the touched surface (plus Gaussian noise of std ``tactile_noise_m``) and that surface's
-outward normal (noiseless: the direction of a tactile array's pressure pattern, known far
-better than the point). They come from the hand's contact query, never from object poses.
+outward normal (turned by Gaussian noise of about ``tactile_normal_noise_rad`` per axis:
+a tactile array's pressure pattern gives the direction only so well, and a sensor that
+read a flat top as exactly vertical every time would hand the memory a feature with no
+spread at all). They come from the hand's contact query, never from object poses.
 """
 
 from __future__ import annotations
@@ -168,6 +170,9 @@ class HapticRoutine:
             0.0, self.config.tactile_noise_m, 3)
         unit = np.asarray(normal, float)
         unit = unit / max(float(np.linalg.norm(unit)), 1e-12)
+        if self.config.tactile_normal_noise_rad > 0:
+            unit = unit + self._tactile_rng.normal(0.0, self.config.tactile_normal_noise_rad, 3)
+            unit = unit / max(float(np.linalg.norm(unit)), 1e-12)
         self._contacts.append(TactileContact(
             point=(float(noisy[0]), float(noisy[1]), float(noisy[2])),
             normal=(float(unit[0]), float(unit[1]), float(unit[2])),
