@@ -32,13 +32,11 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 
 #: Shape evidence beyond equations 1-5 (docs/perception.md, "Extended features"), appended
 #: after W so that the paper's eleven keep their indices. From the retina, the stereo
-#: position and the known camera geometry, in metres of the ground frame: H the height of
-#: the object's top, R the silhouette's height over its width, E how far the silhouette
-#: reaches above the top, G the shading of its surface (planar faces are flat, curved ones
-#: shade smoothly). From touch (unknown, like W, until a haptic improvement): TH the height
-#: of the top the hand touched, TS the steepest slope it touched (the largest tilt of a
-#: contact normal from the vertical: 0 on a flat top, 60 degrees on a prism's flank).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "R", "E", "G", "TH", "TS")
+#: position and the known camera geometry: H the height of the object's top above the
+#: ground. From touch (unknown, like W, until a haptic improvement): TH the height of the
+#: top the hand touched, TS the steepest slope it touched (the largest tilt of a contact
+#: normal from the vertical: 0 on a flat top, 60 degrees on a prism's flank).
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "TH", "TS")
 #: The features a haptic improvement measures (unknown before one): W and touch's shape.
 TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TS")
 

@@ -45,19 +45,19 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02529, 0.03995, 0.05129, 0.00493, 0.00554, 0.00481,
-    0.02507, 0.02169, 0.02210, 0.00423, 0.01055, 0.03058,
-    0.02925, 0.04473, 0.05670, 0.00146, 0.01362)
+    0.02738, 0.04279, 0.05334, 0.00518, 0.00728, 0.00517,
+    0.02213, 0.01892, 0.01850, 0.00436, 0.01065, 0.02970,
+    0.00149, 0.01507)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.685, 1.254, 1.000, 0.653, 0.484, 0.626,
-    0.652, 0.564, 0.161, 2.008, 3.319, 0.538,
-    0.921, 0.325, 0.592, 0.767, 1.451)
-EXTENDED_IDENTIFY_DISTANCE: float = 1.80
+    1.505, 1.110, 0.902, 0.563, 0.173, 0.516,
+    0.744, 0.674, 0.337, 1.859, 3.117, 0.537,
+    0.702, 1.261)
+EXTENDED_IDENTIFY_DISTANCE: float = 1.77
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1413, 0.2635, 0.3477, 0.0382, 0.0446, 0.0359,
-    0.2322, 0.1894, 0.2422, 0.0313, 0.0403, 0.2425,
-    0.4091, 0.6149, 0.8072, 0.0090, 0.8247)
-EXTENDED_NOISE_DOF: float = 8.32
+    0.1588, 0.2949, 0.3698, 0.0402, 0.0599, 0.0386,
+    0.2049, 0.1651, 0.2027, 0.0324, 0.0406, 0.2355,
+    0.0092, 0.9129)
+EXTENDED_NOISE_DOF: float = 9.40
 #: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
 #: a design choice, not a measurement (docs/memory.md, "A robust distance").
 EXTENDED_Z_CAP: float = 3.0

@@ -60,7 +60,7 @@ from roger_perception.features import (
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
-from roger_perception.shape import shading, visual_features, visual_shape
+from roger_perception.shape import top_height, visual_features
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities_batch,
@@ -258,23 +258,17 @@ class Perception:
                 position: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
         """The paper's eleven features followed by the shape evidence of ``shape.py``.
 
-        The visual ones are unknown where D is (a silhouette cut by the retina's edge or a
-        nearer object: its extents are not the object's); H only where the whole of I-D
-        is unknown (too little of the outline is its own). The touch ones are known where
-        a haptic reading with tactile contacts lies near, like W.
+        H is unknown where I is (too little of the outline is the object's own edge, or
+        the retina's edge cuts it: its top may be another object's). The touch ones are
+        known where a haptic reading with tactile contacts lies near, like W.
         """
         extra = np.zeros(len(SHAPE_FEATURE_NAMES), np.float32)
         extra_known = np.zeros(len(SHAPE_FEATURE_NAMES), bool)
-        if known[SIZE_INDEX] or known[0]:
-            z_over, ratio, reach = visual_shape(blob.mask, blob.bbox, frame.camera,
-                                                frame.left_pose, position)
-            values = visual_features(z_over, ratio, reach,
-                                     shading(frame.left, blob.mask, blob.bbox))
-            whole = bool(known[SIZE_INDEX])
-            usable = (bool(known[0]), whole, whole, bool(known[0]))
-            for i, (v, ok) in enumerate(zip(values, usable, strict=True)):
-                if ok and math.isfinite(v):
-                    extra[i], extra_known[i] = v, True
+        if known[0]:
+            (h,) = visual_features(top_height(blob.mask, blob.bbox, frame.camera,
+                                              frame.left_pose, position))
+            if math.isfinite(h):
+                extra[0], extra_known[0] = h, True
         touch = self.haptic_memory.touch_near(position)
         if touch is not None:
             # The touch features come last (TOUCH_FEATURE_NAMES less W).

@@ -15,20 +15,13 @@ known eye pose, never the simulator's objects):
   lies behind the axis, seen under the ray's declination. For a body that turns about the
   vertical (sphere, cylinder) nothing of it depends on yaw; for a box it grows by at most
   ``(sqrt 2 - 1) size / 2 tan(declination)`` between yaw 0 and 45 degrees.
-* ``R``: the silhouette's metric height over its metric width, both at the object's depth:
-  a sphere's outline is a disc (1 from any view); a cylinder's, its side plus its top seen
-  from above (cos + sin of the declination over 1: 1.3-1.4 at Roger's 35-60 degrees). It
-  depends on the view's declination, which changes with distance, but not on the yaw of a
-  body of revolution.
-* ``E``: ``z_over`` over the silhouette's metric height: how much of the silhouette lies
-  above the top (a sphere's outline reaches above its top's projection, a cylinder's ends
-  at its rim).
-* ``G``: shading. The median intensity gradient (per pixel, after a 0.7 px Gaussian) over
-  the ROI's interior (its mask eroded by one pixel), over the ROI's mean intensity. Under
-  the world's one directional light a planar face is evenly lit: a box's or a prism's
-  interior is flat but for the edges between faces; a sphere's and a cylinder's side shade
-  smoothly across. Dividing by the intensity leaves the object's grey out; the face's
-  orientation to the light, and so the yaw, still enter.
+
+Three more visual measurements were built, measured and dropped (docs/perception.md,
+"Extended features"): the silhouette's metric height over width (R), how far it reaches
+above the top (E) and the median shading gradient (G). Between categories that differ only
+in shape they moved as much as between copies of one category at other yaws (ratios 0.7-2.5
+on the shape_twins and yaw_copies worlds 1001-1002), and in closed loop they stored prism
+copies again.
 
 Touch (after a haptic improvement, like W; from the tactile sensor's contact points and
 normals of the first touch and its probe touches, ``HapticReading.contacts``):
@@ -52,7 +45,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import cv2
 import numpy as np
 
 from roger_common.geometry import camera_ray, project_point
@@ -61,11 +53,6 @@ from roger_common.types import CameraModel, EyePose, TactileContact
 #: Heights are divided by this (metres): a 0.22 m box seen from 35-60 degrees above reads
 #: z_over up to about 0.45 m (its far rim), so nothing saturates.
 H_MAX_M: float = 0.5
-#: R and E are divided by this: their largest value on a world's shapes is below 2.
-RATIO_MAX: float = 2.0
-#: G is divided by this: the relative gradient of a curved surface of Roger's worlds stays
-#: below 0.15 per pixel.
-G_MAX: float = 0.2
 
 
 def _ray(camera: CameraModel, pose: EyePose, u: float, v: float) -> np.ndarray:
@@ -86,9 +73,10 @@ def height_over_axis(camera: CameraModel, pose: EyePose, u: float, v: float,
     return float(o[2] + t * d[2])
 
 
-def visual_shape(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraModel,
-                 pose: EyePose, position: Sequence[float]) -> tuple[float, float, float]:
-    """H, R and E of one ROI in metres and ratios, before normalisation (module docstring).
+def top_height(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraModel,
+               pose: EyePose, position: Sequence[float]) -> float:
+    """``z_over`` of one ROI, metres, before normalisation (module docstring); NaN where
+    not measurable.
 
     Args:
         mask: The ROI's silhouette inside ``bbox`` (left retina).
@@ -96,22 +84,13 @@ def visual_shape(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: Came
         camera: The left retina's model.
         pose: The left eye's pose.
         position: The ROI's stereo position, robot frame (z up from the ground).
-
-    Returns:
-        (z_over in metres, height / width, z_over / height); NaN where not measurable.
     """
     vs, us = np.nonzero(mask)
     if vs.size == 0:
-        return math.nan, math.nan, math.nan
+        return math.nan
     us = us + bbox[0]
     vs = vs + bbox[1]
     p = np.asarray(position, float)
-    depth = float(np.dot(p - np.asarray(pose.position, float), np.asarray(pose.rotation)[:, 2]))
-    if not math.isfinite(depth) or depth <= 0:
-        return math.nan, math.nan, math.nan
-    metres_per_px = depth / camera.focal_px
-    width_m = float(us.max() - us.min() + 1) * metres_per_px
-    height_m = float(vs.max() - vs.min() + 1) * metres_per_px
     # The topmost pixel of the columns within 1.5 px of the centre's column: its top edge
     # (v) is where the silhouette ends.
     cu = project_point(camera, pose, tuple(p))[0]
@@ -120,44 +99,13 @@ def visual_shape(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: Came
         near = np.ones_like(us, bool)
     top = float(vs[near].min())
     cols = np.unique(us[near])
-    z_over = float(np.median([height_over_axis(camera, pose, c + 0.5, top, p[:2])
-                              for c in cols]))
-    return z_over, height_m / width_m, z_over / height_m
+    return float(np.median([height_over_axis(camera, pose, c + 0.5, top, p[:2])
+                            for c in cols]))
 
 
-def shading(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int, int]) -> float:
-    """G before normalisation: the median gradient over the ROI's interior over its mean
-    intensity (module docstring); NaN for a ROI with no interior or no light.
-
-    Args:
-        image: The left retina, float in [0, 1].
-        mask: The ROI's silhouette inside ``bbox``.
-        bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
-    """
-    h, w = image.shape
-    pad = 3
-    u0, v0, u1, v1 = bbox
-    a0, b0 = max(0, u0 - pad), max(0, v0 - pad)
-    a1, b1 = min(w, u1 + pad), min(h, v1 + pad)
-    win = cv2.GaussianBlur(np.ascontiguousarray(image[b0:b1, a0:a1], np.float32), (0, 0), 0.7)
-    gx = cv2.Sobel(win, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(win, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    full = np.zeros(win.shape, np.uint8)
-    full[v0 - b0:v1 - b0, u0 - a0:u1 - a0] = mask
-    inner = cv2.erode(full, np.ones((3, 3), np.uint8)) > 0
-    if inner.sum() < 5:
-        return math.nan
-    mean = float(win[full > 0].mean())
-    if mean <= 1e-3:
-        return math.nan
-    return float(np.median(np.hypot(gx, gy)[inner])) / mean
-
-
-def visual_features(z_over: float, ratio: float, reach: float, grad: float
-                    ) -> tuple[float, float, float, float]:
-    """H, R, E, G normalised to [0, 1] (NaN stays NaN: unknown)."""
-    return (_unit(z_over / H_MAX_M), _unit(ratio / RATIO_MAX), _unit(reach / RATIO_MAX),
-            _unit(grad / G_MAX))
+def visual_features(z_over: float) -> tuple[float]:
+    """H normalised to [0, 1] (NaN stays NaN: unknown)."""
+    return (_unit(z_over / H_MAX_M),)
 
 
 def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float] | None:
