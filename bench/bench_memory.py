@@ -20,7 +20,7 @@ import time
 import numpy as np
 import torch
 
-from roger_common.types import FEATURE_DIM, MatchOutcome
+from roger_common.types import MatchOutcome, feature_dim
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
 from roger_memory.network import student_t_noise
@@ -29,9 +29,10 @@ from roger_memory.network import student_t_noise
 def bench_size(n: int, matches: int, stores: int, seed: int) -> dict[str, float]:
     """Time preload, match and store for a memory of ``n`` objects."""
     rng = np.random.default_rng(seed)
-    patterns = rng.random((n + stores, FEATURE_DIM)).astype(np.float32)
-    known = np.ones((n + stores, FEATURE_DIM), bool)
-    config = MemoryConfig()
+    config = MemoryConfig()  # the default feature mode's
+    dim = feature_dim(config.features)
+    patterns = rng.random((n + stores, dim)).astype(np.float32)
+    known = np.ones((n + stores, dim), bool)
     sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
     memory = AssociativeMemory(config, seed=seed)
     t0 = time.perf_counter()
@@ -41,7 +42,7 @@ def bench_size(n: int, matches: int, stores: int, seed: int) -> dict[str, float]
 
     match_times, identified = [], 0
     for i in rng.integers(0, n, matches):
-        noise = student_t_noise(rng, (1, FEATURE_DIM), config.noise_dof)[0] * sigma
+        noise = student_t_noise(rng, (1, dim), config.noise_dof)[0] * sigma
         q = np.clip(patterns[i] + noise, 0.0, 1.0)
         t0 = time.perf_counter()
         result = memory.match(q, known[i])

@@ -354,3 +354,33 @@ def test_a_place_seen_once_is_looked_at_again_when_nothing_else_is_unmapped() ->
     entry = m.get(seen_once)
     assert entry.position[:2] == pytest.approx((0.4, -0.9)) and not entry.mapped
     assert entry.interest == pytest.approx(0.3)
+
+
+def test_a_merge_hold_takes_every_touch_feature_of_the_extended_mode() -> None:
+    """What the hand measured (W, and TH and TS in the extended mode) is not the window's
+    pixels: a held (merged) window still gives all of it; the visual features stay."""
+    from roger_common.types import TOUCH_FEATURE_NAMES, feature_dim, feature_names
+    names = feature_names("extended")
+    n = feature_dim("extended")
+    touch = [names.index(t) for t in TOUCH_FEATURE_NAMES]
+
+    def look(value: float, felt: float | None, bbox: tuple[int, int, int, int]) -> Roi:
+        features = np.full(n, value, np.float32)
+        known = np.ones(n, bool)
+        for i in touch:
+            features[i], known[i] = (0.0, False) if felt is None else (felt, True)
+        return Roi(roi_id=0, bbox=bbox, position=(0.5, 0.0, 0.05), features=features,
+                   known=known, activation=0.5)
+
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([look(0.3, None, (0, 0, 4, 4))], now=float(t))
+    (eid,) = [e.entry_id for e in m]
+    m.focus(eid, now=2.0)
+    m.update([look(0.7, 0.6, (0, 0, 4, 9))], now=3.0, still=True)   # a merge, felt
+    e = m.get(eid)
+    assert e.known.all()
+    assert all(e.features[i] == pytest.approx(0.6) for i in touch)
+    assert e.features[names.index("H")] == pytest.approx(0.3)     # the window's own
+    m.update([look(0.7, 0.2, (0, 0, 4, 9))], now=4.0, still=True)   # felt again
+    assert all(m.get(eid).features[i] == pytest.approx(0.2) for i in touch)

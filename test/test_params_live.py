@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
 from roger_common.configdoc import field_range
-from roger_common.types import FEATURE_DIM, MatchOutcome
+from roger_common.types import MatchOutcome, feature_dim
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -123,11 +123,13 @@ def test_a_live_parameter_set_by_a_client_changes_the_next_decision(no_leaks,
     client_node = Node("param_client", context=ros_context)
     try:
         memory.pub_result, memory.pub_learned = Sink(), Sink()
-        x = np.linspace(0.2, 0.7, FEATURE_DIM).astype(np.float32)
-        known = [True] * FEATURE_DIM
-        memory.on_request(MemoryRequest(request_id=1, op=1, features=x.tolist(), known=known))
-        ask = MemoryRequest(request_id=2, op=0, features=x.tolist(), known=known,
-                            final_trial=False)
+        mode = memory.memory.config.features
+        x = np.linspace(0.2, 0.7, feature_dim(mode)).astype(np.float32)
+        known = [True] * feature_dim(mode)
+        memory.on_request(MemoryRequest(request_id=1, op=1, feature_mode=mode,
+                                        features=x.tolist(), known=known))
+        ask = MemoryRequest(request_id=2, op=0, feature_mode=mode, features=x.tolist(),
+                            known=known, final_trial=False)
         memory.on_request(ask)
         first = memory.pub_result.msgs[-1]
         assert first.outcome == MatchOutcome.IDENTIFIED and first.confidence < 0.999

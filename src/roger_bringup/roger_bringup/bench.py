@@ -42,7 +42,7 @@ from typing import Any, Self
 import numpy as np
 import yaml
 
-from roger_common.types import FEATURE_DIM, WorldSpec
+from roger_common.types import WorldSpec, feature_dim
 from roger_experiments.core_loop import CoreLoop
 from roger_experiments.evaluation import ACTION_NAMES
 from roger_experiments.progress import ProgressBar
@@ -241,15 +241,17 @@ def run_graph_timed(world_path: Path, out: Path, cycles: int, seed: int = 0,
 def match_latency(n: int, queries: int, seed: int = 0) -> float:
     """Median seconds of one memory match with ``n`` objects stored (random patterns)."""
     rng = np.random.default_rng(seed)
-    patterns = rng.random((n, FEATURE_DIM)).astype(np.float32)
-    known = np.ones((n, FEATURE_DIM), bool)
-    memory = AssociativeMemory(MemoryConfig(), seed=seed)
+    config = MemoryConfig()  # the default feature mode's, as a run's
+    dim = feature_dim(config.features)
+    patterns = rng.random((n, dim)).astype(np.float32)
+    known = np.ones((n, dim), bool)
+    memory = AssociativeMemory(config, seed=seed)
     memory.store_many(patterns, known)
     for i in range(5):  # warm-up
         memory.match(patterns[i % n], known[i % n])
     times = []
     for i in rng.integers(0, n, queries):
-        q = np.clip(patterns[i] + rng.normal(0.0, 0.01, FEATURE_DIM), 0.0, 1.0)
+        q = np.clip(patterns[i] + rng.normal(0.0, 0.01, dim), 0.0, 1.0)
         t0 = time.perf_counter()
         memory.match(q, known[i])
         times.append(time.perf_counter() - t0)

@@ -308,6 +308,11 @@ class HapticRoutine:
                     # The grasp holds what the hand touches now (the probes may have
                     # nudged the object); the reading keeps the first touch's position.
                     self._touched = body
+                    # The hand came back from the probes as a via point and may still be
+                    # settling sideways: held to where it is, so that it does not carry
+                    # the object along while it lifts (2-4 mm on touching.yaml before,
+                    # enough to turn two touching objects into one ROI for perception).
+                    self._planar = (float(q_arm[1]), float(q_arm[2]))
                 self._grasp(body)
                 self.phase = "lift"
                 # Under load the lift joint sags (the model does not know the object):
