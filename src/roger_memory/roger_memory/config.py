@@ -45,19 +45,19 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02738, 0.04279, 0.05334, 0.00518, 0.00728, 0.00517,
-    0.02213, 0.01892, 0.01850, 0.00436, 0.01065, 0.02970,
-    0.00149, 0.01507)
+    0.02553, 0.03980, 0.05173, 0.00518, 0.00771, 0.00538,
+    0.02283, 0.01929, 0.01765, 0.00454, 0.01013, 0.02862,
+    0.00151, 0.01374)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.505, 1.110, 0.902, 0.563, 0.173, 0.516,
-    0.744, 0.674, 0.337, 1.859, 3.117, 0.537,
-    0.702, 1.261)
-EXTENDED_IDENTIFY_DISTANCE: float = 1.77
+    1.591, 1.177, 0.939, 0.543, 0.101, 0.465,
+    0.734, 0.668, 0.389, 1.784, 3.198, 0.569,
+    0.694, 1.147)
+EXTENDED_IDENTIFY_DISTANCE: float = 1.80
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1588, 0.2949, 0.3698, 0.0402, 0.0599, 0.0386,
-    0.2049, 0.1651, 0.2027, 0.0324, 0.0406, 0.2355,
-    0.0092, 0.9129)
-EXTENDED_NOISE_DOF: float = 9.40
+    0.1525, 0.2957, 0.3826, 0.0411, 0.0666, 0.0421,
+    0.2133, 0.1793, 0.1818, 0.0327, 0.0370, 0.2227,
+    0.0102, 0.8167)
+EXTENDED_NOISE_DOF: float = 8.81
 #: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
 #: a design choice, not a measurement (docs/memory.md, "A robust distance").
 EXTENDED_Z_CAP: float = 3.0
