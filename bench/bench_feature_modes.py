@@ -4,7 +4,10 @@ machines are noisy).
 
 Run: ``.venv/bin/python bench/bench_feature_modes.py [--world worlds/inspection.yaml]
 [--frames 40] [--rounds 5]``. The frames are the robot's own looks (an attention shift, a
-visual and a haptic improvement at each object, simulator seed 0).
+visual and a haptic improvement at each object, simulator seed 0). It also renders the same
+goals with and without the fovea of a visual improvement (``SimConfig.fovea_fov_deg``) and
+reports the renderer's wall seconds per frame and per visual improvement (the fovea is
+rendered only after one).
 """
 
 from __future__ import annotations
@@ -22,22 +25,32 @@ from roger_sim.simulator import Simulator
 from roger_sim.world import load_world
 
 
-def frames(world: Path, n: int) -> list[StereoFrame]:
-    """Up to ``n`` frames: shift, visual and haptic improvement at each object in turn."""
+def frames(world: Path, n: int, config: SimConfig | None = None,
+           render_seconds: list[float] | None = None) -> list[StereoFrame]:
+    """Up to ``n`` frames: shift, visual and haptic improvement at each object in turn
+    (``render_seconds``: gets the renderer's wall seconds of those frames appended)."""
     spec = load_world(world)
     out: list[StereoFrame] = []
-    with Simulator(spec, SimConfig(), seed=0) as sim:
-        poses = sim.object_poses()
-        goal = 0
-        for name in poses:
-            x, y, z, _ = poses[name]
-            for action in (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT,
-                           Action.HAPTIC_IMPROVEMENT):
-                goal += 1
-                out.append(sim.run_goal(Goal(goal, action, (x, y, z)))[1])
-                if len(out) >= n:
-                    return out
+    with Simulator(spec, config or SimConfig(), seed=0) as sim:
+        try:
+            _collect(sim, out, n)
+        finally:
+            if render_seconds is not None:
+                render_seconds.append(sim.floor_seconds["render"])
     return out
+
+
+def _collect(sim: Simulator, out: list[StereoFrame], n: int) -> None:
+    poses = sim.object_poses()
+    goal = 0
+    for name in poses:
+        x, y, z, _ = poses[name]
+        for action in (Action.ATTENTION_SHIFT, Action.VISUAL_IMPROVEMENT,
+                       Action.HAPTIC_IMPROVEMENT):
+            goal += 1
+            out.append(sim.run_goal(Goal(goal, action, (x, y, z)))[1])
+            if len(out) >= n:
+                return
 
 
 def main() -> None:
@@ -59,6 +72,16 @@ def main() -> None:
     print(f"{len(looks)} frames of {args.world}, {args.rounds} rounds alternated: "
           f"paper {paper * 1e3:.2f} ms/frame, extended {extended * 1e3:.2f} ms/frame, "
           f"extended / paper {extended / paper:.3f} (median of rounds)")
+    render: dict[float, list[float]] = {30.0: [], 0.0: []}
+    for _ in range(args.rounds):
+        for fov in render:
+            frames(args.world, args.frames, SimConfig(fovea_fov_deg=fov), render[fov])
+    with_f, without = (statistics.median(render[f]) for f in (30.0, 0.0))
+    improvements = sum(1 for f in looks if f.fovea is not None)
+    print(f"renderer: {with_f / len(looks) * 1e3:.2f} ms/frame with the fovea, "
+          f"{without / len(looks) * 1e3:.2f} without, ratio {with_f / without:.3f}; "
+          f"{(with_f - without) / max(improvements, 1) * 1e3:.2f} ms per fovea "
+          f"({improvements} visual improvements of {len(looks)} frames)")
 
 
 if __name__ == "__main__":

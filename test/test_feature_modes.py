@@ -104,15 +104,31 @@ def test_an_unknown_mode_is_refused_naming_the_choices() -> None:
         mode_of_dim(12)
 
 
-def test_touch_reads_the_top_height_and_the_steepest_slope() -> None:
+def test_touch_reads_the_top_height_the_curvature_and_the_crease() -> None:
     from roger_common.types import TactileContact
-    from roger_perception.shape import tactile_shape
+    from roger_perception.shape import CREASE_RAD, TK_SCALE_M, tactile_shape
     flat = [TactileContact((0.6, 0.0, 0.12), (0.0, 0.0, 1.0)),
             TactileContact((0.64, 0.0, 0.121), (0.0, 0.0, 1.0), (0.04, 0.0))]
-    th, ts = tactile_shape(flat)
-    assert th == pytest.approx(0.121 / H_MAX_M) and ts == pytest.approx(0.0, abs=1e-6)
+    th, tk, tc = tactile_shape(flat)
+    assert th == pytest.approx(0.121 / H_MAX_M) and tk == pytest.approx(0.0, abs=1e-6)
+    assert tc == pytest.approx(0.0, abs=1e-6)
+    # A flank 60 degrees from a flat touch: a crease, no curvature.
     tilt = np.radians(60.0)
+    assert tilt > CREASE_RAD
     flank = TactileContact((0.63, 0.0, 0.07), (np.sin(tilt), 0.0, np.cos(tilt)), (0.04, 0.0))
-    th, ts = tactile_shape([flat[0], flank])
-    assert th == pytest.approx(0.12 / H_MAX_M) and ts == pytest.approx(60 / 90, abs=1e-6)
+    th, tk, tc = tactile_shape([flat[0], flank])
+    assert th == pytest.approx(0.12 / H_MAX_M) and tk == pytest.approx(0.0, abs=1e-6)
+    assert tc == pytest.approx(60 / 180, abs=1e-6)
+    # Touches on a sphere of radius R: TK = TK_SCALE_M / R wherever they land, no crease.
+    for radius, centre, dirs in ((0.08, (0.5, 0.1, 0.0), ((0, 0), (0.3, 0.1), (-0.2, 0.25),
+                                                          (0.05, -0.35))),
+                                 (0.06, (0.7, -0.2, 0.0), ((0.1, 0.05), (0.4, 0.0),
+                                                           (-0.3, -0.2)))):
+        touches = []
+        for dx, dy in dirs:
+            n = np.array([dx, dy, np.sqrt(1 - dx * dx - dy * dy)])
+            touches.append(TactileContact(tuple(np.add(centre, radius * n)), tuple(n)))
+        th, tk, tc = tactile_shape(touches)
+        assert tk == pytest.approx(TK_SCALE_M / radius, rel=0.03), radius
+        assert tc == pytest.approx(0.0, abs=0.01), radius
     assert tactile_shape([]) is None

@@ -112,3 +112,31 @@ def test_an_unusable_reading_releases_the_pair_without_one(node):
     deliver(node, frame_parts(11, 1.0, haptic=bad))
     node.on_haptic(sc.haptic_msg(bad, 11, 1.0))
     assert node.seen == [(11, None, [])]
+
+
+def test_a_pair_with_a_fovea_waits_for_it_and_carries_it(node):
+    size, fsize = 32, 48
+    cam = CameraModel(width=size, height=size, focal_px=30.0)
+    fcam = CameraModel(width=fsize, height=fsize, focal_px=90.0)
+    pose = eye_pose(np.zeros(3), (0.0, 0.0, 0.0, 1.0))
+    img = np.full((size, size), 0.2, np.float32)
+    fimg = np.full((fsize, fsize), 0.3, np.float32)
+    frame = StereoFrame(stamp=2.0, goal_id=7, left=img, right=img, camera=cam,
+                        left_pose=pose, right_pose=pose, fovea=fimg, fovea_camera=fcam)
+    parts = frame_parts(7, 2.0)
+    parts["geometry"] = sc.stereo_geometry_msg(frame)
+    assert parts["geometry"].fovea
+    seen = []
+    node.perception.process = lambda f, mapped=(): seen.append(f) or []
+    deliver(node, parts)
+    assert seen == []  # the pair is complete, its fovea is not
+    node._part(parts["geometry"].header.stamp, "fovea", sc.image_msg(fimg, 2.0, "l"))
+    assert seen == []
+    node._part(parts["geometry"].header.stamp, "fovea_info",
+               sc.camera_info_msg(fcam, 2.0, "l", 0.0, right=False))
+    assert len(seen) == 1 and seen[0].goal_id == 7
+    assert seen[0].fovea is not None and seen[0].fovea.shape == (fsize, fsize)
+    assert seen[0].fovea_camera.focal_px == pytest.approx(90.0)
+    # A pair without a fovea does not wait for one.
+    deliver(node, frame_parts(8, 3.0))
+    assert [f.goal_id for f in seen] == [7, 8] and seen[1].fovea is None

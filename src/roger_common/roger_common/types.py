@@ -33,12 +33,17 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 #: Shape evidence beyond equations 1-5 (docs/perception.md, "Extended features"), appended
 #: after W so that the paper's eleven keep their indices. From the retina, the stereo
 #: position and the known camera geometry: H the height of the object's top above the
-#: ground. From touch (unknown, like W, until a haptic improvement): TH the height of the
-#: top the hand touched, TS the steepest slope it touched (the largest tilt of a contact
-#: normal from the vertical: 0 on a flat top, 60 degrees on a prism's flank).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "TH", "TS")
+#: ground. From the fovea of a visual improvement (unknown before one): O how far the top
+#: outline departs from the ellipse a vertical cylinder's rim would project. From touch
+#: (unknown, like W, until a haptic improvement): TH the height of the top the hand
+#: touched, TK the curvature its touches agree on (0 on a flat top or a flank, 1 / radius
+#: on a sphere) and TC the crease between them that the curvature does not explain (a
+#: prism's ridge).
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "TH", "TK", "TC")
 #: The features a haptic improvement measures (unknown before one): W and touch's shape.
-TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TS")
+TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC")
+#: The features only a visual improvement's foveal look measures (unknown before one).
+FOVEA_FEATURE_NAMES: tuple[str, ...] = ("O",)
 
 
 class FeatureMode(str, Enum):
@@ -255,6 +260,10 @@ class StereoFrame:
             memory): per pixel, the index into ``label_names`` of the object seen,
             -1 for the ground and the robot itself.
         label_names: Object names for the label images.
+        fovea: After a visual improvement, the left eye's foveal image: the centre of
+            its field at a higher resolution (``SimConfig.fovea_fov_deg``), float32 in
+            [0, 1], same pose as ``left``, with its own pixel noise; None otherwise.
+        fovea_camera: Intrinsics of ``fovea`` (None without one).
     """
 
     stamp: float
@@ -269,6 +278,8 @@ class StereoFrame:
     left_labels: np.ndarray | None = None
     right_labels: np.ndarray | None = None
     label_names: tuple[str, ...] = ()
+    fovea: np.ndarray | None = None
+    fovea_camera: CameraModel | None = None
 
 
 @dataclass

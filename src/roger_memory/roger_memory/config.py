@@ -13,6 +13,7 @@ from typing import Any, NoReturn
 from roger_common.errors import ConfigError
 from roger_common.types import (
     DEFAULT_FEATURE_MODE,
+    FOVEA_FEATURE_NAMES,
     TOUCH_FEATURE_NAMES,
     FeatureMode,
     feature_names,
@@ -45,19 +46,19 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02553, 0.03980, 0.05173, 0.00518, 0.00771, 0.00538,
-    0.02283, 0.01929, 0.01765, 0.00454, 0.01013, 0.02862,
-    0.00151, 0.01374)
+    0.02497, 0.03836, 0.05035, 0.00498, 0.00576, 0.00518,
+    0.02582, 0.02214, 0.02068, 0.00420, 0.01017, 0.02931,
+    0.01691, 0.00150, 0.01435, 0.00686)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.591, 1.177, 0.939, 0.543, 0.101, 0.465,
-    0.734, 0.668, 0.389, 1.784, 3.198, 0.569,
-    0.694, 1.147)
-EXTENDED_IDENTIFY_DISTANCE: float = 1.80
+    1.640, 1.234, 0.983, 0.593, 0.413, 0.513,
+    0.615, 0.531, 0.226, 1.896, 3.244, 0.553,
+    1.862, 0.714, 0.542, 0.441)
+EXTENDED_IDENTIFY_DISTANCE: float = 1.85
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1525, 0.2957, 0.3826, 0.0411, 0.0666, 0.0421,
-    0.2133, 0.1793, 0.1818, 0.0327, 0.0370, 0.2227,
-    0.0102, 0.8167)
-EXTENDED_NOISE_DOF: float = 8.81
+    0.1494, 0.2792, 0.3670, 0.0398, 0.0501, 0.0409,
+    0.2414, 0.2050, 0.2133, 0.0306, 0.0371, 0.2252,
+    0.5696, 0.0102, 0.8294, 0.4604)
+EXTENDED_NOISE_DOF: float = 7.74
 #: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
 #: a design choice, not a measurement (docs/memory.md, "A robust distance").
 EXTENDED_Z_CAP: float = 3.0
@@ -83,7 +84,8 @@ CALIBRATED: dict[FeatureMode, Calibrated] = {
                                   CALIBRATED_NOISE_DOF, ("W",), 0.0),
     FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
                                      EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
-                                     EXTENDED_NOISE_DOF, TOUCH_FEATURE_NAMES,
+                                     EXTENDED_NOISE_DOF,
+                                     TOUCH_FEATURE_NAMES + FOVEA_FEATURE_NAMES,
                                      EXTENDED_Z_CAP),
 }
 _DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]

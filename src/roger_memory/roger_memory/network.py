@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from roger_common.types import WEIGHT_INDEX, feature_names
+from roger_common.types import TOUCH_FEATURE_NAMES, WEIGHT_INDEX, feature_names
 from roger_memory.config import MemoryConfig
 
 #: Activation standing in for "no unit can answer" (finite, so that gradients stay finite).
@@ -368,8 +368,12 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
     if usable.size == 0:
         return 0
     focus_idx = usable[addresses[usable] == focus]
-    maskable = np.array([name in config.maskable_features
-                         for name in feature_names(config.features)])
+    names = feature_names(config.features)
+    maskable = np.array([name in config.maskable_features for name in names])
+    # Touch's features share W's draw (one haptic improvement measures them all); any
+    # other maskable feature (the fovea's O) has a draw of its own.
+    draw_column = np.array([WEIGHT_INDEX if name in TOUCH_FEATURE_NAMES else i
+                            for i, name in enumerate(names)])
     y_all = np.asarray(addresses, np.int64) + 1
     prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
     prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
@@ -389,10 +393,10 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
                 rng.choice(usable, n_repeat - n_focus)])
             noise = student_t_noise(rng, (len(idx), dim), config.noise_dof) * sigma
             x = x_all[idx] + noise
-            # The maskable features (what touch measures) turn unknown together, as they
-            # become known together: one draw per sample, W's column (the paper mode's
-            # draws unchanged).
-            draw = rng.random((len(idx), dim))[:, WEIGHT_INDEX:WEIGHT_INDEX + 1]
+            # The maskable features turn unknown as they become known: touch's together
+            # (W's column of one draw per sample), the fovea's on its own column (the
+            # paper mode's draws unchanged).
+            draw = rng.random((len(idx), dim))[:, draw_column]
             drop = maskable & (draw < config.unknown_feature_prob)
             k = k_all[idx] & ~drop
             k = np.where((k.sum(axis=1) >= config.min_common_features)[:, None], k, k_all[idx])

@@ -33,7 +33,7 @@ class HapticMemory:
         self.radius = float(radius)
         self._positions: list[np.ndarray] = []
         self._weights: list[float] = []
-        self._touch: list[tuple[float, float] | None] = []
+        self._touch: list[tuple[float, ...] | None] = []
 
     def __len__(self) -> int:
         return len(self._weights)
@@ -72,8 +72,8 @@ class HapticMemory:
         i = self._nearest(np.asarray(position, float))
         return None if i is None else self._weights[i]
 
-    def touch_near(self, position: Sequence[float]) -> tuple[float, float] | None:
-        """TH, TS (``shape.tactile_shape``) of the nearest reading within the radius;
+    def touch_near(self, position: Sequence[float]) -> tuple[float, ...] | None:
+        """TH, TK, TC (``shape.tactile_shape``) of the nearest reading within the radius;
         None without one, or when that reading's touches were not reported."""
         i = self._nearest(np.asarray(position, float))
         return None if i is None else self._touch[i]

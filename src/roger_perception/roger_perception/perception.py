@@ -57,6 +57,7 @@ from roger_perception.features import (
     vicinity_radius,
     weight_feature,
 )
+from roger_perception.fovea import FoveaLooks, fixated, fovea_steps, outline_feature
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
@@ -89,6 +90,9 @@ class Perception:
         self._half_windows = [max(1, round(self.config.match_window_sigmas * s))
                               for s in self.config.log_sigmas]
         self.haptic_memory = HapticMemory(self.config.haptic_radius_m)
+        self.fovea_looks = FoveaLooks(self.config.haptic_radius_m)
+        #: The last fovea's steps (``fovea.fovea_steps``), computed once for its ROIs.
+        self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
         self._previous_view: MotionView | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
@@ -114,6 +118,7 @@ class Perception:
     def reset(self) -> None:
         """Forget haptic readings, the previous frame and the last visual buffer."""
         self.haptic_memory.clear()
+        self.fovea_looks.clear()
         self._previous_view = None
         self._last_log = ([], [])
         self.last_roi_labels = np.zeros((0, 0), np.int32)
@@ -259,7 +264,10 @@ class Perception:
         """The paper's eleven features followed by the shape evidence of ``shape.py``.
 
         H is unknown where I is (too little of the outline is the object's own edge, or
-        the retina's edge cuts it: its top may be another object's). The touch ones are
+        the retina's edge cuts it: its top may be another object's). O is measured, under
+        the same condition, on the fovea of a visual improvement, for the ROI the eye
+        fixates (``fovea.fixated``), and kept at the object's position
+        (``fovea.FoveaLooks``: the median of its last looks), like the weight. The touch ones are
         known where a haptic reading with tactile contacts lies near, like W.
         """
         extra = np.zeros(len(SHAPE_FEATURE_NAMES), np.float32)
@@ -269,6 +277,18 @@ class Perception:
                                               frame.left_pose, position))
             if math.isfinite(h):
                 extra[0], extra_known[0] = h, True
+            if frame.fovea is not None and frame.fovea_camera is not None \
+                    and fixated(blob.mask, blob.bbox, frame.camera):
+                if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:
+                    self._fovea_steps = (frame.fovea, fovea_steps(frame.fovea))
+                o = outline_feature(frame.fovea, frame.fovea_camera, frame.camera,
+                                    frame.left_pose, blob.mask, blob.bbox, position,
+                                    self._fovea_steps[1])
+                if math.isfinite(o):
+                    self.fovea_looks.add(position, o)
+        o_near = self.fovea_looks.near(position)
+        if o_near is not None:
+            extra[1], extra_known[1] = o_near, True
         touch = self.haptic_memory.touch_near(position)
         if touch is not None:
             # The touch features come last (TOUCH_FEATURE_NAMES less W).

@@ -27,14 +27,26 @@ Touch (after a haptic improvement, like W; from the tactile sensor's contact poi
 normals of the first touch and its probe touches, ``HapticReading.contacts``):
 
 * ``TH``: height of the highest contact point: the top's height, felt.
-* ``TS``: the steepest slope touched: the largest angle between a contact's surface normal
-  and the vertical, over 90 degrees. A box's or a cylinder's top is flat (0); a sphere's
-  dome tilts by asin(offset / radius) where the probes land (20-35 degrees for a 10 cm
-  sphere); a prism's flanks are 60 degrees steep wherever they are touched, and of three
-  probe directions 120 degrees apart one always crosses the ridge, whatever the yaw. The
-  drops of the probe contacts below the first were tried first: on a prism they depend
-  on where the first touch landed beside the ridge (between copies they differed by 20
-  category scales), so they are not used.
+* ``TK``: the curvature the touches agree on. Between two contacts i, j the normal turns by
+  ``|n_i - n_j|`` over ``|p_i - p_j|`` of surface: on a sphere 1 / radius for every pair,
+  wherever the probes land, on a flat face 0. TK is the least-squares curvature over the
+  *smooth* pairs (normals less than ``CREASE_RAD`` apart, at least ``MIN_PAIR_M`` apart):
+  sum(turn * distance) / sum(distance^2), which weighs the long pairs, whose normals' noise
+  (0.03 rad each) matters least. A pair across an edge or a prism's ridge is no curvature.
+  Times ``TK_SCALE_M``.
+* ``TC``: the crease the touches cross: over the pairs, the largest angle between the
+  normals that the curvature TK does not explain (``angle - curvature * distance``), over
+  pi. Of three probe directions 120 degrees apart one always crosses a prism's ridge,
+  whatever the yaw: a flank's normal stands 60 degrees from the ridge's (which the hand's
+  flat face reports vertical) or 120 from the other flank's (0.27-0.35 measured on worlds
+  2001-2002 of both recipes). A sphere's normals turn as its curvature says (0 but
+  noise), a flat top's not at all.
+
+  Both replace ``TS`` (the steepest slope touched, 487cef8-bfe3283): on a sphere that was
+  asin(offset / radius) where the probes landed, so copies of one sphere read 0.15-0.24
+  and were stored again (docs/perception.md, "Extended features"). The drops of the probe
+  contacts below the first were tried before TS: on a prism they depend on where the first
+  touch landed beside the ridge, so they are not used either.
 
 Each value is normalised to [0, 1] (clipped) by the constants below, like equations 4-5.
 Pure numpy; no ROS.
@@ -49,6 +61,16 @@ import numpy as np
 
 from roger_common.geometry import camera_ray, project_point
 from roger_common.types import CameraModel, EyePose, TactileContact
+
+#: Pairs of touches closer than this (metres) give no curvature: their normals' noise
+#: (0.03 rad each) over a short distance would read as a tight curve.
+MIN_PAIR_M: float = 0.01
+#: Two touches whose normals are this far apart (radians) lie across an edge or a ridge,
+#: not on one smooth surface: a 10 cm sphere's touches 3 cm apart turn by 0.6.
+CREASE_RAD: float = 0.9
+#: TK is the curvature (1/m) times this: a sphere of 10-18 cm reads 0.6-0.33, and a radius
+#: under 3 cm saturates at 1.
+TK_SCALE_M: float = 0.03
 
 #: Heights are divided by this (metres): a 0.22 m box seen from 35-60 degrees above reads
 #: z_over up to about 0.45 m (its far rim), so nothing saturates.
@@ -108,22 +130,39 @@ def visual_features(z_over: float) -> tuple[float]:
     return (_unit(z_over / H_MAX_M),)
 
 
-def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float] | None:
-    """TH and TS from one haptic improvement's touches, normalised to [0, 1].
+def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float, float] | None:
+    """TH, TK and TC from one haptic improvement's touches, normalised to [0, 1].
 
     Args:
         contacts: The touches, first one first (``HapticReading.contacts``).
 
     Returns:
-        (TH, TS), or None without a touch.
+        (TH, TK, TC), or None without a touch. With a single touch (or touches all closer
+        than ``MIN_PAIR_M``) TK and TC are 0: no pair shows a curve or a crease.
     """
     if not contacts:
         return None
     top = max(c.point[2] for c in contacts)
-    steepest = max(math.acos(max(-1.0, min(1.0, c.normal[2] / max(math.hypot(*c.normal),
-                                                                   1e-12))))
-                   for c in contacts)
-    return _unit(top / H_MAX_M), _unit(steepest / (math.pi / 2.0))
+    points = [np.asarray(c.point, float) for c in contacts]
+    normals = [_unit_vector(c.normal) for c in contacts]
+    pairs = [(float(np.linalg.norm(points[i] - points[j])),
+              float(np.linalg.norm(normals[i] - normals[j])),
+              math.acos(max(-1.0, min(1.0, float(np.dot(normals[i], normals[j]))))))
+             for i in range(len(points)) for j in range(i + 1, len(points))]
+    pairs = [p for p in pairs if p[0] >= MIN_PAIR_M]
+    if not pairs:
+        return _unit(top / H_MAX_M), 0.0, 0.0
+    smooth = [(dist, turn) for dist, turn, angle in pairs if angle < CREASE_RAD]
+    curvature = (sum(t * d for d, t in smooth) / sum(d * d for d, _ in smooth)
+                 if smooth else 0.0)
+    crease = max(max(0.0, angle - curvature * dist) for dist, _, angle in pairs)
+    return (_unit(top / H_MAX_M), _unit(curvature * TK_SCALE_M), _unit(crease / math.pi))
+
+
+def _unit_vector(v: Sequence[float]) -> np.ndarray:
+    a = np.asarray(v, float)
+    n = float(np.linalg.norm(a))
+    return a / n if n > 1e-12 else np.array([0.0, 0.0, 1.0])
 
 
 def _unit(x: float) -> float:

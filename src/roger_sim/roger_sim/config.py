@@ -30,6 +30,11 @@ class SimConfig:
         weight_noise_kg: Std of the Gaussian noise of a haptic weight measurement, kg.
         goal_timeout_s: Simulated seconds a goal may take before transient controllers fail.
         improve_exposures: Renders integrated after a visual improvement (noise / sqrt(n)).
+        fovea_fov_deg: Field of view of the left eye's fovea, degrees: after a visual
+            improvement the centre of the left eye's field is also rendered at
+            ``fovea_size`` pixels (with ``improve_exposures``' noise), as primate and iCub
+            eyes have a fovea. 0: no fovea. The extended features' O is measured on it.
+        fovea_size: Width and height of the foveal image in pixels.
         realtime: Sleep so that simulated time follows wall-clock time (for watching).
         gui: Open pybullet's own window instead of the headless DIRECT client.
         light_ambient: Phong ambient coefficient of the TinyRenderer.
@@ -73,6 +78,8 @@ class SimConfig:
     weight_noise_kg: float = 0.02
     goal_timeout_s: float = 5.0
     improve_exposures: int = 4
+    fovea_fov_deg: float = 30.0
+    fovea_size: int = 192
     realtime: bool = field(default=False, metadata={"live": True})
     gui: bool = False
     light_ambient: float = 0.6
@@ -124,6 +131,10 @@ class SimConfig:
                "in [0.1, 60] s")
         _check("improve_exposures", self.improve_exposures, 1 <= self.improve_exposures <= 64,
                "in [1, 64]")
+        _check("fovea_fov_deg", self.fovea_fov_deg,
+               self.fovea_fov_deg == 0.0 or 5.0 <= self.fovea_fov_deg < self.fov_deg,
+               "0 (no fovea) or in [5, fov_deg) degrees")
+        _check("fovea_size", self.fovea_size, 16 <= self.fovea_size <= 1024, "in [16, 1024]")
         for name in ("light_ambient", "light_diffuse", "light_specular", "ground_grey",
                      "robot_grey"):
             value = getattr(self, name)

@@ -9,6 +9,7 @@ give the same images and readings, bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import Self
@@ -124,6 +125,14 @@ class Simulator:
         for spec in world.objects:
             self._spawn(spec)
         self._retina = Retina(c, cfg, world.light_direction)
+        # The fovea: the left eye's central field at a higher resolution, rendered after a
+        # visual improvement. Its pixel noise has its own stream, so that the retinas'
+        # noise (and every run without a fovea look) stays what it was.
+        self._fovea = (Retina(c, dataclasses.replace(cfg, fov_deg=cfg.fovea_fov_deg,
+                                                     fovea_fov_deg=0.0,
+                                                     image_size=cfg.fovea_size),
+                              world.light_direction) if cfg.fovea_fov_deg > 0 else None)
+        self._fovea_rng = self._rngs.child("fovea")
         self._applied = np.zeros(len(self._names))
         self._steps = start_steps
         self._last_haptic: HapticReading | None = None
@@ -173,7 +182,8 @@ class Simulator:
         ``physics``: inside ``stepSimulation``; ``render``: inside ``getCameraImage``. Their
         sum over a control cycle is its physical floor (``roger bench``).
         """
-        return {"physics": self._physics_seconds, "render": self._retina.seconds}
+        return {"physics": self._physics_seconds,
+                "render": self._retina.seconds + (self._fovea.seconds if self._fovea else 0.0)}
 
     @property
     def last_haptic(self) -> HapticReading | None:
@@ -375,13 +385,15 @@ class Simulator:
 
     # ---------------------------------------------------------------------------- vision
 
-    def render(self, goal_id: int = 0, exposures: int = 1) -> StereoFrame:
+    def render(self, goal_id: int = 0, exposures: int = 1, fovea: bool = False) -> StereoFrame:
         """Render both retinas now.
 
         Args:
             goal_id: Goal the frame belongs to (0: none).
             exposures: Renders integrated; the scene is static while rendering, so this
                 is one render with pixel noise of std ``pixel_noise / sqrt(exposures)``.
+            fovea: Also render the left eye's fovea (``SimConfig.fovea_fov_deg``; nothing
+                when that is 0), with the same exposures.
         """
         if not isinstance(exposures, int) or exposures < 1:
             raise ValueError(f"exposures must be an integer >= 1, got {exposures!r}")
@@ -399,12 +411,20 @@ class Simulator:
             # One table lookup per pixel (body id + 1 -> label; -1, the sky, -> -1) instead
             # of one pass over the image per object.
             labels[side] = lut[np.where((ids >= -1) & (ids < len(lut) - 1), ids + 1, 0)]
+        fovea_image, fovea_camera = None, None
+        if fovea and self._fovea is not None:
+            fovea_camera = self._fovea.camera
+            fovea_image, _ = self._fovea.render(poses["left"])
+            if sigma > 0:
+                noise = self._fovea_rng.normal(0.0, sigma, fovea_image.shape).astype(np.float32)
+                fovea_image = np.clip(fovea_image + noise, 0.0, 1.0, dtype=np.float32)
         return StereoFrame(stamp=self.sim_time, goal_id=goal_id, left=images["left"],
                            right=images["right"], camera=self.camera,
                            left_pose=poses["left"], right_pose=poses["right"],
                            exposures=exposures, haptic=self.last_haptic,
                            left_labels=labels["left"], right_labels=labels["right"],
-                           label_names=label_names)
+                           label_names=label_names, fovea=fovea_image,
+                           fovea_camera=fovea_camera)
 
     def _labels_lut(self) -> np.ndarray:
         """Table from pybullet body id + 1 to label index (-1 for the sky and the robot)."""
@@ -417,11 +437,12 @@ class Simulator:
         return self._label_lut
 
     def run_goal(self, goal: Goal) -> tuple[ControllerReport, StereoFrame]:
-        """Execute ``goal`` then render (integrating exposures after a visual improvement)."""
+        """Execute ``goal`` then render (integrating exposures, and the fovea, after a
+        visual improvement)."""
         report = self.execute(goal)
-        exposures = (self.config.improve_exposures
-                     if Action(goal.action) == Action.VISUAL_IMPROVEMENT else 1)
-        return report, self.render(goal.goal_id, exposures)
+        improve = Action(goal.action) == Action.VISUAL_IMPROVEMENT
+        exposures = self.config.improve_exposures if improve else 1
+        return report, self.render(goal.goal_id, exposures, fovea=improve)
 
     # ---------------------------------------------------------------- world at run time
 

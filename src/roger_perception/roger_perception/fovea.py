@@ -1,0 +1,264 @@
+"""The fovea's shape evidence: O, how far an object's top outline departs from a cylinder's.
+
+A box turned 45 degrees and a cylinder of one size, grey and weight differ, on Roger's 128 px
+retinas, in a few pixels of their outline's corners (docs/perception.md, "Extended
+features"). After a visual improvement the simulator also renders the centre of the left
+eye's field at a higher resolution (``SimConfig.fovea_fov_deg``, ``fovea_size``: 30 degrees
+at 192 px, 3.3 times the retina's resolution), as primate and iCub eyes have a fovea. On it:
+
+1. **The top outline.** The ROI's silhouette (left retina) is mapped into the fovea (same
+   pose and optical axis; only the focal length differs). In each of its columns the top
+   edge is the strongest vertical intensity step within two retina pixels of the
+   silhouette's top, to a tenth of a fovea pixel (a parabola through the peak). Columns
+   whose step is under half the median step (a neighbour's edge, the ground) are dropped.
+2. **The cylinder hypothesis.** A vertical cylinder's top rim, seen from the eye, projects
+   to an ellipse whose shape the known camera geometry gives: a horizontal circle around
+   the ROI's stereo position, projected into the fovea and scaled to the outline's width.
+   Its upper half is what the outline would be.
+3. **O** is the outline's departure from that half-ellipse over the central 80 % of its
+   width, after the best vertical shift: the median absolute deviation (robust to a few
+   columns of a neighbour's edge), over the ellipse's vertical half-axis, over ``O_MAX``.
+
+A cylinder reads near 0 at any yaw and bearing (its outline is that ellipse; a sphere's is
+close to it). A box's top outline is one straight edge (yaw 0) or two meeting at a corner
+(yaw 45): against an ellipse of the same width both depart by a third of its height, at
+any yaw. A prism's outline is a triangle or a line. Invariant to position and bearing
+(the ellipse comes from the eye's own pose), to grey and to distance (all in units of the
+ellipse's own height); not to the silhouette's top being another object's (then unknown,
+as H) nor to a top the fovea cuts (unknown).
+
+``FoveaLooks`` keeps each measurement at its object's position, as ``HapticMemory`` keeps
+the weight: O is known in every later frame that shows the object, unknown before the first
+visual improvement onto it. Pure numpy/OpenCV; no ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from roger_common.types import CameraModel, EyePose
+
+#: O's departure (in units of the ellipse's vertical half-axis) is divided by this: boxes
+#: read about 0.1 (0.2 as O), cylinders 0.02-0.03, prisms up to 0.6 (clipped at 1).
+O_MAX: float = 0.5
+#: Fewest outline columns O is measured from.
+MIN_COLUMNS: int = 8
+#: Share of the outline's half-width (either side of its middle) that O compares.
+CENTRAL: float = 0.8
+#: Largest jump of the top edge between neighbouring columns, fovea pixels, within one
+#: outline (an ellipse's end, seen at Roger's declinations, climbs about 2.5 a column).
+MAX_STEP_PX: float = 4.0
+#: An edge's step must be this many times the fovea's noise (its median step).
+EDGE_SNR: float = 4.0
+#: Share of the silhouette's width the top outline must cover (else O is unknown).
+WHOLE: float = 0.75
+#: Share of the central columns whose departure O averages (the rest may be a neighbour's).
+TRIM: float = 0.9
+#: The fixated ROI's silhouette reaches this close to the optical axis, retina pixels.
+FIXATION_PX: float = 3.0
+#: Radius of the circle projected for the ellipse's shape, metres (only its shape counts).
+_R0 = 0.05
+
+
+def fovea_steps(fovea: np.ndarray) -> tuple[np.ndarray, float]:
+    """The smoothed fovea's vertical steps (``step[v]``: between rows v and v + 1) and the
+    floor an edge's step must exceed: most of the fovea is flat, so its median step is the
+    image's own noise, and an edge must stand EDGE_SNR times above it."""
+    img = cv2.GaussianBlur(np.asarray(fovea, np.float32), (0, 0), 1.0)
+    step = np.abs(np.diff(img, axis=0))
+    return step, max(EDGE_SNR * 1.4826 * float(np.median(step)), 1e-4)
+
+
+def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
+                mask: np.ndarray, bbox: tuple[int, int, int, int],
+                steps: tuple[np.ndarray, float] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The top edge of a ROI's silhouette, refined on the fovea (module docstring, step 1).
+
+    Args:
+        fovea: The foveal image, float (Hf, Wf).
+        fovea_camera: Its intrinsics.
+        camera: The left retina's intrinsics (same pose and optical axis).
+        mask: The ROI's silhouette inside ``bbox`` (left retina).
+        bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
+        steps: ``fovea_steps(fovea)``, when already computed for this fovea.
+
+    Returns:
+        (columns, tops): fovea columns and the top edge's row in each (fovea pixels, edges
+        at integers); None when the silhouette is not wholly inside the fovea or too few
+        columns show a clear edge.
+    """
+    m = fovea_camera.focal_px / camera.focal_px
+    hf, wf = fovea.shape
+    # The whole silhouette (its box) must lie inside the fovea, off its border.
+    uf0 = (bbox[0] - camera.width / 2.0) * m + wf / 2.0
+    uf1 = (bbox[2] - camera.width / 2.0) * m + wf / 2.0
+    vf0 = (bbox[1] - camera.height / 2.0) * m + hf / 2.0
+    vf1 = (bbox[3] - camera.height / 2.0) * m + hf / 2.0
+    if uf0 < 1.0 or vf0 < 1.0 or uf1 > wf - 1.0 or vf1 > hf - 1.0:
+        return None
+    uc = (np.arange(wf) + 0.5 - wf / 2.0) / m + camera.width / 2.0
+    vc = (np.arange(hf) + 0.5 - hf / 2.0) / m + camera.height / 2.0
+    ui, vi = np.floor(uc).astype(int) - bbox[0], np.floor(vc).astype(int) - bbox[1]
+    in_u = (ui >= 0) & (ui < mask.shape[1])
+    in_v = (vi >= 0) & (vi < mask.shape[0])
+    sil = np.zeros((hf, wf), bool)
+    sil[np.ix_(in_v, in_u)] = mask[np.ix_(vi[in_v], ui[in_u])]
+    if not sil.any():
+        return None
+    cols = np.flatnonzero(sil.any(axis=0))
+    step, floor = fovea_steps(fovea) if steps is None else steps
+    reach = max(2, int(round(2 * m)))
+    tops, strength = [], []
+    for c in cols:
+        v_top = int(np.flatnonzero(sil[:, c])[0])
+        lo, hi = max(0, v_top - reach), min(hf - 1, v_top + reach)
+        seg = step[lo:hi, c]
+        k = int(np.argmax(seg))
+        off = 0.0
+        if 0 < k < len(seg) - 1:
+            den = float(seg[k - 1] - 2.0 * seg[k] + seg[k + 1])
+            off = 0.5 * float(seg[k - 1] - seg[k + 1]) / den if den != 0.0 else 0.0
+        tops.append(lo + k + 1 + off)
+        strength.append(float(seg[k]))
+    s = np.asarray(strength)
+    span = cols[-1] + 1 - cols[0]
+    keep = (s >= 0.5 * float(np.median(s))) & (s > floor)
+    cols, top = cols[keep], np.asarray(tops)[keep]
+    if cols.size < MIN_COLUMNS:
+        return None
+    # The longest run of neighbouring columns whose edge continues (a merged neighbour's
+    # outline, or a stretch of ground edge, breaks it).
+    breaks = np.flatnonzero((np.diff(cols) > 2) | (np.abs(np.diff(top)) > MAX_STEP_PX)) + 1
+    runs = np.split(np.arange(cols.size), breaks)
+    run = max(runs, key=len)
+    # The outline must be seen whole: against a neighbour of its own grey, or behind
+    # one, only a stretch of it shows, and a stretch of an ellipse is no ellipse.
+    if run.size < MIN_COLUMNS or cols[run[-1]] + 1 - cols[run[0]] < WHOLE * span:
+        return None
+    return cols[run], top[run]
+
+
+def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: CameraModel,
+                      pose: EyePose, position: Sequence[float]) -> float:
+    """O before normalisation (module docstring, steps 2-3); NaN where not measurable.
+
+    Args:
+        columns, tops: ``top_outline``'s result.
+        fovea_camera: The fovea's intrinsics.
+        pose: The left eye's pose (the fovea's).
+        position: The ROI's stereo position, robot frame.
+    """
+    p = np.asarray(position, float)
+    angles = np.linspace(0.0, 2.0 * math.pi, 181)[:-1]
+    rim = np.column_stack([p[0] + _R0 * np.cos(angles), p[1] + _R0 * np.sin(angles),
+                           np.full(angles.size, p[2])])
+    # project_point for every rim point at once (pinhole, pixel centres at +0.5).
+    cam = (rim - np.asarray(pose.position, float)) @ np.asarray(pose.rotation, float)
+    if not np.all(cam[:, 2] > 1e-9):
+        return math.nan
+    pu = fovea_camera.focal_px * cam[:, 0] / cam[:, 2] + fovea_camera.width / 2.0
+    pv = fovea_camera.focal_px * cam[:, 1] / cam[:, 2] + fovea_camera.height / 2.0
+    width = (pu.max() - pu.min()) / 2.0
+    half = (columns.max() + 1 - columns.min()) / 2.0
+    if width <= 0 or half < MIN_COLUMNS / 2:
+        return math.nan
+    scale = half / width
+    pu = (pu - (pu.max() + pu.min()) / 2.0) * scale
+    pv = pv * scale
+    sag = (pv.max() - pv.min()) / 2.0
+    x = columns + 0.5 - (columns.min() + columns.max() + 1) / 2.0
+    # The ellipse's upper envelope at each column: the smallest v of the polygon's edges
+    # that span it.
+    u1, v1 = pu, pv
+    u2, v2 = np.roll(pu, -1), np.roll(pv, -1)
+    lo, hi = np.minimum(u1, u2), np.maximum(u1, u2)
+    span = (x[:, None] >= lo[None]) & (x[:, None] <= hi[None]) & (hi > lo)[None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_at = v1[None] + (x[:, None] - u1[None]) * (v2 - v1)[None] / (u2 - u1)[None]
+    envelope = np.where(span, v_at, np.inf).min(axis=1)
+    ok = np.isfinite(envelope) & (np.abs(x) <= CENTRAL * half)
+    if ok.sum() < MIN_COLUMNS // 2 or sag <= 0:
+        return math.nan
+    d = tops[ok] - envelope[ok]
+    d = d - np.median(d)
+    # RMS over the columns that agree best (TRIM of them): a few columns of another edge
+    # do not count, a straight edge's departure at both ends does.
+    a = np.sort(np.abs(d))[:max(1, int(round(TRIM * d.size)))]
+    return float(np.sqrt(np.mean(a ** 2)) / sag)
+
+
+def outline_feature(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
+                    pose: EyePose, mask: np.ndarray, bbox: tuple[int, int, int, int],
+                    position: Sequence[float],
+                    steps: tuple[np.ndarray, float] | None = None) -> float:
+    """O of one ROI normalised to [0, 1]; NaN where the fovea does not measure it
+    (``steps``: as for ``top_outline``)."""
+    outline = top_outline(fovea, fovea_camera, camera, mask, bbox, steps)
+    if outline is None:
+        return math.nan
+    dep = outline_departure(*outline, fovea_camera, pose, position)
+    return float(min(1.0, dep / O_MAX)) if math.isfinite(dep) else math.nan
+
+
+def fixated(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraModel,
+            reach_px: float = FIXATION_PX) -> bool:
+    """True when the ROI's silhouette reaches within ``reach_px`` retina pixels of the
+    optical axis: the object the eye fixates, the one a visual improvement looks at. Only
+    its O is measured: another object at the fovea's side is seen in passing, often cut or
+    merged with its neighbour."""
+    vs, us = np.nonzero(mask)
+    if vs.size == 0:
+        return False
+    du = us + bbox[0] + 0.5 - camera.width / 2.0
+    dv = vs + bbox[1] + 0.5 - camera.height / 2.0
+    return bool(np.min(du * du + dv * dv) <= reach_px * reach_px)
+
+
+class FoveaLooks:
+    """O of the objects a visual improvement looked at, by position (module docstring):
+    the median of an object's last ``keep`` measurements, so that one look at a moment
+    its outline was half hidden does not decide.
+
+    Args:
+        radius: A measurement belongs to a later ROI within this distance (ground plane),
+            metres.
+    """
+
+    def __init__(self, radius: float, keep: int = 5) -> None:
+        self.radius = float(radius)
+        self.keep = int(keep)
+        self._positions: list[np.ndarray] = []
+        self._values: list[list[float]] = []
+
+    def add(self, position: Sequence[float], value: float) -> None:
+        """Add ``value`` to the object at ``position`` (a new object when none is near)."""
+        pos = np.asarray(position, float)
+        i = self._nearest(pos)
+        if i is None:
+            self._positions.append(pos)
+            self._values.append([float(value)])
+        else:
+            self._positions[i] = pos
+            self._values[i] = (self._values[i] + [float(value)])[-self.keep:]
+
+    def near(self, position: Sequence[float]) -> float | None:
+        """O of the nearest object within the radius (its looks' median), or None."""
+        i = self._nearest(np.asarray(position, float))
+        return None if i is None else float(np.median(self._values[i]))
+
+    def clear(self) -> None:
+        """Forget every measurement."""
+        self._positions.clear()
+        self._values.clear()
+
+    def _nearest(self, pos: np.ndarray) -> int | None:
+        if not self._positions:
+            return None
+        d = np.linalg.norm(np.stack(self._positions)[:, :2] - pos[:2], axis=1)
+        i = int(np.argmin(d))
+        return i if d[i] <= self.radius else None

@@ -1,0 +1,152 @@
+"""The fovea: the simulator's foveal render after a visual improvement, and O, the top
+outline's departure from a cylinder's ellipse (roger_perception/fovea.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from roger_common.geometry import look_rotation, project_point
+from roger_common.types import (
+    Action,
+    CameraModel,
+    EyePose,
+    FeatureMode,
+    Goal,
+    ObjectSpec,
+    WorldSpec,
+    feature_names,
+)
+from roger_perception.config import PerceptionConfig
+from roger_perception.fovea import FoveaLooks, fixated, outline_departure, top_outline
+from roger_perception.perception import Perception
+from roger_sim.config import SimConfig
+from roger_sim.simulator import Simulator
+
+O_INDEX = feature_names(FeatureMode.EXTENDED).index("O")
+
+
+def _pose() -> EyePose:
+    position = np.array([0.0, 0.03, 0.55])
+    return EyePose(position, look_rotation(position, np.array([0.6, 0.0, 0.05])))
+
+
+def _envelope(camera: CameraModel, pose: EyePose, points: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Columns and the topmost row of a closed 3-D outline's projection (the test's own
+    rasterisation, dense sampling)."""
+    uv = np.array([project_point(camera, pose, p)[:2] for p in points])
+    cols = np.arange(int(np.ceil(uv[:, 0].min())), int(np.floor(uv[:, 0].max())))
+    tops = []
+    for c in cols:
+        near = np.abs(uv[:, 0] - (c + 0.5)) < 0.3
+        tops.append(uv[near, 1].min())
+    return cols, np.array(tops)
+
+
+def test_an_ellipse_from_the_eye_geometry_departs_by_nothing_and_a_straight_edge_by_much():
+    cam = CameraModel(width=192, height=192, focal_px=358.0)
+    pose = _pose()
+    centre = np.array([0.6, 0.0, 0.1])
+    t = np.linspace(0.0, 2 * math.pi, 20000)
+    for radius in (0.04, 0.07):
+        rim = centre + radius * np.column_stack([np.cos(t), np.sin(t), np.zeros_like(t)])
+        cols, tops = _envelope(cam, pose, rim)
+        assert outline_departure(cols, tops, cam, pose, centre) < 0.01, radius
+    # A box's top seen face-on: its far edge is one straight line at the ellipse's top;
+    # seen corner-on, two lines meeting at the far corner.
+    for yaw in (0.0, math.pi / 8, math.pi / 4):
+        c, s = math.cos(yaw), math.sin(yaw)
+        corners = [centre + 0.05 * np.array([c * x - s * y, s * x + c * y, 0.0])
+                   for x, y in ((1, 1), (-1, 1), (-1, -1), (1, -1), (1, 1))]
+        edges = np.concatenate([np.linspace(a, b, 4000) for a, b in zip(corners, corners[1:])])
+        cols, tops = _envelope(cam, pose, edges)
+        assert outline_departure(cols, tops, cam, pose, centre) > 0.08, yaw
+
+
+def test_the_fovea_is_rendered_after_a_visual_improvement_only_and_leaves_the_retinas_noise():
+    world = WorldSpec((ObjectSpec("b", "box", (0.55, 0.0), 0.12, 90.0, 1.0),))
+    frames = {}
+    for fovea in (30.0, 0.0):
+        sim = Simulator(world, SimConfig(fovea_fov_deg=fovea), seed=3)
+        try:
+            _, shift = sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, (0.55, 0.0, 0.05)))
+            _, vi = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, (0.55, 0.0, 0.05)))
+        finally:
+            sim.close()
+        frames[fovea] = (shift, vi)
+    shift, vi = frames[30.0]
+    assert shift.fovea is None and shift.fovea_camera is None
+    cfg = SimConfig()
+    assert vi.fovea is not None and vi.fovea.shape == (cfg.fovea_size, cfg.fovea_size)
+    assert vi.fovea_camera.focal_px == pytest.approx(
+        (cfg.fovea_size / 2) / math.tan(math.radians(cfg.fovea_fov_deg) / 2))
+    # The fovea's centre shows what the retina's centre shows (one optical axis).
+    m = cfg.fovea_size // 2
+    assert float(np.mean(vi.fovea[m - 2:m + 2, m - 2:m + 2])) == pytest.approx(
+        float(np.mean(vi.left[62:66, 62:66])), abs=0.05)
+    assert frames[0.0][1].fovea is None
+    # Its noise has a stream of its own: the retinas are the same with and without it.
+    for a, b in zip(frames[30.0], frames[0.0]):
+        np.testing.assert_array_equal(a.left, b.left)
+        np.testing.assert_array_equal(a.right, b.right)
+
+
+def _o_of(shape: str, yaw: float, position: tuple[float, float]) -> float:
+    """O of one object after a shift and a visual improvement onto it."""
+    other = (position[0], -position[1])
+    world = WorldSpec((ObjectSpec("x", shape, position, 0.12, 90.0, 1.0, yaw=yaw),
+                       ObjectSpec("y", "sphere", other, 0.10, 60.0, 1.0)))
+    sim = Simulator(world, SimConfig(), seed=1)
+    perception = Perception(PerceptionConfig(features="extended"))
+    target = (position[0], position[1], 0.05)
+    try:
+        sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
+        _, frame = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))
+    finally:
+        sim.close()
+    rois = perception.process(frame, [])
+    roi = min(rois, key=lambda r: math.dist(r.position[:2], position))
+    assert math.dist(roi.position[:2], position) < 0.05
+    assert roi.known[O_INDEX], (shape, yaw)
+    return float(roi.features[O_INDEX])
+
+
+def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place():
+    boxes = [_o_of("box", yaw, pos) for yaw, pos in ((0.0, (0.55, 0.2)),
+                                                     (0.4, (0.6, -0.15)),
+                                                     (0.79, (0.5, 0.05)))]
+    cylinders = [_o_of("cylinder", yaw, pos) for yaw, pos in ((0.0, (0.55, 0.2)),
+                                                              (1.1, (0.5, 0.05)))]
+    assert min(boxes) > 2.0 * max(cylinders), (boxes, cylinders)
+
+
+def test_a_silhouette_outside_the_fovea_gives_no_outline():
+    cam = CameraModel(width=128, height=128, focal_px=110.0)
+    fcam = CameraModel(width=192, height=192, focal_px=358.0)
+    fovea = np.zeros((192, 192), np.float32)
+    mask = np.ones((20, 20), bool)
+    assert top_outline(fovea, fcam, cam, mask, (2, 54, 22, 74)) is None  # off to the left
+    # Inside, over a flat image: no edge, no outline.
+    assert top_outline(fovea, fcam, cam, mask, (54, 54, 74, 74)) is None
+
+
+def test_fovea_looks_keep_the_median_of_an_objects_last_looks_until_cleared():
+    looks = FoveaLooks(radius=0.08, keep=3)
+    looks.add((0.5, 0.1, 0.05), 0.3)
+    assert looks.near((0.52, 0.12, 0.0)) == 0.3 and looks.near((0.7, 0.1, 0.05)) is None
+    for value in (0.1, 0.12, 0.9):  # the same object, looked at again; one look half hidden
+        looks.add((0.51, 0.1, 0.05), value)
+    assert looks.near((0.5, 0.1, 0.05)) == pytest.approx(0.12)  # median of 0.1, 0.12, 0.9
+    looks.clear()
+    assert looks.near((0.5, 0.1, 0.05)) is None
+
+
+def test_only_the_fixated_silhouette_is_measured():
+    cam = CameraModel(width=128, height=128, focal_px=110.0)
+    mask = np.ones((10, 10), bool)
+    assert fixated(mask, (60, 60, 70, 70), cam)          # covers the optical axis
+    assert fixated(mask, (66, 55, 76, 65), cam)          # its edge 2 px from it
+    assert not fixated(mask, (80, 60, 90, 70), cam)      # beside the fixated object
