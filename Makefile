@@ -48,7 +48,25 @@ $(STAMPS)/interfaces: $(STAMPS)/requirements src/roger_interfaces/CMakeLists.txt
 	@$(PY) -c "from roger_interfaces.msg import RoiArray" || { echo "roger_interfaces does not import"; exit 1; }
 	@touch $@
 
-$(STAMPS)/packages: $(STAMPS)/interfaces $(SETUP_FILES)
+# ROS 2 Jazzy's tf2_msgs (/tf, /tf_static): no wheel has it, so its standard definitions
+# (third_party/tf2_msgs) are built into the venv the same way.
+TF2_FILES := $(wildcard third_party/tf2_msgs/*/*.msg third_party/tf2_msgs/*/*.srv \
+  third_party/tf2_msgs/*/*.action)
+$(STAMPS)/tf2_msgs: $(STAMPS)/requirements third_party/tf2_msgs/CMakeLists.txt third_party/tf2_msgs/package.xml $(TF2_FILES)
+	@echo "building tf2_msgs (ROS 2 Jazzy's definitions) into $(VENV)"
+	@mkdir -p build
+	@export AMENT_PREFIX_PATH=$(ROOT)/$(VENV) PATH=$(ROOT)/$(VENV)/bin:$$PATH; \
+	  cmake -S third_party/tf2_msgs -B build/tf2_msgs -Wno-dev \
+	    -DCMAKE_PREFIX_PATH=$(ROOT)/$(VENV) -DCMAKE_INSTALL_PREFIX=$(ROOT)/$(VENV) \
+	    -DPython3_EXECUTABLE=$(ROOT)/$(PY) -DBUILD_TESTING=OFF > build/tf2_msgs-configure.log 2>&1 \
+	  || { echo "cmake configure failed: see build/tf2_msgs-configure.log"; tail -20 build/tf2_msgs-configure.log; exit 1; }; \
+	  cmake --build build/tf2_msgs -j2 > build/tf2_msgs-build.log 2>&1 \
+	  || { echo "cmake build failed: see build/tf2_msgs-build.log"; tail -30 build/tf2_msgs-build.log; exit 1; }; \
+	  cmake --install build/tf2_msgs > build/tf2_msgs-install.log 2>&1
+	@$(PY) -c "from tf2_msgs.msg import TFMessage" || { echo "tf2_msgs does not import"; exit 1; }
+	@touch $@
+
+$(STAMPS)/packages: $(STAMPS)/interfaces $(STAMPS)/tf2_msgs $(SETUP_FILES)
 	@echo "installing the roger packages (editable) into $(VENV)"
 	@$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation \
 	  $(foreach p,$(PACKAGES),-e src/$(p)) 2>&1 | $(PIPQUIET)

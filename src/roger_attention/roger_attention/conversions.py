@@ -5,10 +5,16 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+from geometry_msgs.msg import Pose, Quaternion, Vector3
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
 from roger_attention.controller import CycleRecord
+from roger_attention.markers import MarkerShape, MarkerSpec
 from roger_attention.session import PublishMap, PublishMetrics, Report
 from roger_attention.spatial_map import MapEntry
 from roger_common.conversions import header, point, seconds_to_time
+from roger_common.frames import GROUND_FRAME
 from roger_common.types import RunCounters
 from roger_interfaces.msg import MapEntry as MapEntryMsg
 from roger_interfaces.msg import Metrics, PolicyState
@@ -69,3 +75,23 @@ def spatial_map_msg(entries: Iterable[MapEntry], stamp: float,
 def publish_map_to_msg(out: PublishMap) -> SpatialMapMsg:
     """A session's PublishMap as a SpatialMap message."""
     return spatial_map_msg(out.entries, out.stamp, out.revision)
+
+
+_MARKER_TYPES = {MarkerShape.SPHERE: Marker.SPHERE, MarkerShape.CYLINDER: Marker.CYLINDER,
+                 MarkerShape.TEXT: Marker.TEXT_VIEW_FACING}
+
+
+def markers_msg(specs: Iterable[MarkerSpec], stamp: float) -> MarkerArray:
+    """The map's markers (roger_attention.markers) in the ground frame, after a DELETEALL
+    that clears those of the previous map (entries that vanished go with them)."""
+    head = header(stamp, GROUND_FRAME)
+    out = [Marker(header=head, action=Marker.DELETEALL)]
+    for s in specs:
+        r, g, b, a = s.rgba
+        out.append(Marker(
+            header=head, ns=s.namespace, id=int(s.marker_id), type=_MARKER_TYPES[s.shape],
+            action=Marker.ADD,
+            pose=Pose(position=point(s.position), orientation=Quaternion(w=1.0)),
+            scale=Vector3(x=float(s.scale[0]), y=float(s.scale[1]), z=float(s.scale[2])),
+            color=ColorRGBA(r=float(r), g=float(g), b=float(b), a=float(a)), text=s.text))
+    return MarkerArray(markers=out)

@@ -5,7 +5,10 @@ packages (goals, retinas, eye geometry, haptic readings) convert in roger_common
 from __future__ import annotations
 
 import numpy as np
+from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Vector3
 from sensor_msgs.msg import Image, JointState
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 from roger_common.conversions import LEFT_FRAME, RIGHT_FRAME, header, point
 from roger_common.types import (
@@ -22,6 +25,7 @@ from roger_interfaces.msg import (
     GroundTruthLabels,
     WorldObject,
 )
+from roger_sim.tf_tree import Transform as CoreTransform
 
 
 def labels_msg(labels: np.ndarray, stamp: float, frame_id: str) -> Image:
@@ -89,3 +93,22 @@ def ground_truth_labels_msg(frame: StereoFrame) -> GroundTruthLabels | None:
         header=header(frame.stamp), label_names=list(frame.label_names),
         left=labels_msg(frame.left_labels, frame.stamp, LEFT_FRAME),
         right=labels_msg(frame.right_labels, frame.stamp, RIGHT_FRAME))
+
+
+# -- the robot model and its TF tree -------------------------------------------------------
+def robot_description_msg(urdf: str) -> String:
+    """The URDF as /robot_description carries it (std_msgs/String, as robot_state_publisher)."""
+    return String(data=urdf)
+
+
+def tf_msg(transforms: list[CoreTransform], stamp: float) -> TFMessage:
+    """Transforms of roger_sim.tf_tree as a tf2_msgs/TFMessage stamped ``stamp``."""
+    return TFMessage(transforms=[
+        TransformStamped(
+            header=header(stamp, t.parent), child_frame_id=t.child,
+            transform=Transform(
+                translation=Vector3(x=t.translation[0], y=t.translation[1],
+                                    z=t.translation[2]),
+                rotation=Quaternion(x=t.rotation[0], y=t.rotation[1], z=t.rotation[2],
+                                    w=t.rotation[3])))
+        for t in transforms])
