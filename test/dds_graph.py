@@ -30,7 +30,10 @@ def participant() -> None:
     def on_msg(msg: String) -> None:
         if msg.data != me and not heard:
             heard.append(msg.data)
-            print(f"ready {me}", flush=True)
+            # One write: two participants share the launcher's stdout pipe, and print()'s
+            # separate writes of text and newline interleaved ("ready 1ready 2\n\n"), which
+            # the test read as one participant ready (the "did not discover" of issue 39).
+            os.write(1, f"ready {me}\n".encode())
 
     pub = node.create_publisher(String, "/leak_check", 10)
     node.create_subscription(String, "/leak_check", on_msg, 10)

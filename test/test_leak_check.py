@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,6 +62,7 @@ class StandIn:
     proc: subprocess.Popen
     pids: list[int] = field(default_factory=list)
     lines: queue.Queue = field(default_factory=queue.Queue)
+    said: list[str] = field(default_factory=list)
 
     @classmethod
     def start(cls, domain: int, n: int = 2) -> StandIn:
@@ -73,14 +75,49 @@ class StandIn:
         return graph
 
     def wait_ready(self, n: int = 2, timeout: float = 60.0) -> None:
-        """Until every participant has heard from another (each maps the others' files)."""
+        """Until every participant has heard from another (each maps the others' files).
+
+        Raises:
+            AssertionError: Not all ready within ``timeout`` s; the message says what the
+                test saw (``seen``), so that a failure to discover can be told apart.
+        """
         ready = 0
+        deadline = time.monotonic() + timeout
         while ready < n:
-            line = self.lines.get(timeout=timeout)
-            if line.startswith("pid "):
-                self.pids.append(int(line.split()[1]))
-            elif line.startswith("ready "):
-                ready += 1
+            try:
+                line = self.lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise AssertionError(f"stand-in graph on domain {self.domain}: {ready} of {n} "
+                                     f"participants ready after {timeout:g} s; "
+                                     f"{self.seen()}") from None
+            self.said.append(line.rstrip())
+            # By word, not by line: lines of two writers on one pipe may run together.
+            words = line.split()
+            for word, value in zip(words, words[1:], strict=False):
+                if word.endswith("pid") and value.isdigit():
+                    self.pids.append(int(value))
+                elif word.endswith("ready") and value.isdigit():
+                    ready += 1
+
+    def seen(self) -> str:
+        """What the graph looks like now: its lines, each participant's state and sockets,
+        and the shared-memory files of its domain and of its processes, with their holders.
+        A participant's UDP ports say its participant id (7400 + 250 * domain + 10/11 +
+        2 * id): two ids of 32 or more never discover each other with LOCALHOST discovery
+        (roger_common.dds), and a port file held by a process of another graph means the
+        domain was not free."""
+        mine = process_tree([self.proc.pid])
+        parts = [f"launcher {self.proc.pid} exit {self.proc.poll()}",
+                 f"lines {self.said}"]
+        for pid in self.pids:
+            parts.append(f"participant {pid}: {_proc_state(pid)}, udp ports "
+                         f"{sorted(_udp_ports(pid))}")
+        held = holders()
+        files = sorted(name for name in shm_files()
+                       if domain_of(name) == self.domain or held.get(name, set()) & mine)
+        parts.append("shm " + ", ".join(
+            f"{name} held by {sorted(held.get(name, ()))}" for name in files))
+        return "; ".join(parts)
 
     def files(self) -> set[str]:
         """The ports and segments this graph's processes have open or mapped now."""
@@ -97,6 +134,34 @@ class StandIn:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait(timeout=30)
+
+
+def _proc_state(pid: int) -> str:
+    """A process's state letter (R, S, T, Z...) or "gone"."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
+
+
+def _udp_ports(pid: int) -> set[int]:
+    """The UDP ports the process has bound (its sockets' inodes in /proc/net/udp)."""
+    try:
+        inodes = {os.readlink(fd)[8:-1] for fd in Path(f"/proc/{pid}/fd").iterdir()
+                  if os.readlink(fd).startswith("socket:[")}
+    except OSError:
+        return set()
+    ports = set()
+    for table in ("udp", "udp6"):
+        try:
+            rows = Path(f"/proc/{pid}/net/{table}").read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            cols = row.split()
+            if len(cols) > 9 and cols[9] in inodes:
+                ports.add(int(cols[1].rsplit(":", 1)[1], 16))
+    return ports
 
 
 def left_unheld(ledger: ShmLedger, groups: set[str]) -> set[str]:

@@ -14,6 +14,7 @@ import socket
 import sys
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import fields, replace
 from typing import Any, TypeVar
@@ -258,6 +259,48 @@ class HeartbeatWatch:
     def forget(self, pid: int) -> None:
         """Drop the local process ``pid`` (it was killed; its pid may be reused)."""
         self.silence.forget((self.host, pid))
+
+
+#: Seconds between two warnings about unusable messages on one topic (the first comes at
+#: once; those dropped in between are counted in the next).
+BAD_INPUT_PERIOD_S = 10.0
+
+
+class BadInput:
+    """Drops unusable messages: one warning per topic naming it, then at most one every
+    ``period_s`` seconds, so that a publisher flooding a topic with bad messages cannot
+    flood the log (docs/reliability.md, "Bad input").
+
+    Attributes:
+        dropped: Messages dropped so far, per topic.
+        lines: The last warnings given (newest last), for tests and post-mortems.
+    """
+
+    def __init__(self, node: Node, period_s: float = BAD_INPUT_PERIOD_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._logger = node.get_logger()
+        self.period_s = period_s
+        self._clock = clock
+        self.dropped: dict[str, int] = {}
+        self._held: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+        self.lines: deque[str] = deque(maxlen=64)
+
+    def drop(self, topic: str, reason: object) -> None:
+        """Count a message of ``topic`` dropped for ``reason`` (an exception or text)."""
+        self.dropped[topic] = self.dropped.get(topic, 0) + 1
+        now = self._clock()
+        last = self._last.get(topic)
+        if last is not None and now - last < self.period_s:
+            self._held[topic] = self._held.get(topic, 0) + 1
+            return
+        self._last[topic] = now
+        held = self._held.pop(topic, 0)
+        since = f" ({held} more dropped since the last warning)" if held else ""
+        why = " ".join(str(reason).splitlines())
+        line = f"{topic}: unusable message dropped: {why}{since}"
+        self.lines.append(line)
+        self._logger.warning(line)
 
 
 def spin_node(factory: Any, prog: str, args: list[str] | None = None,

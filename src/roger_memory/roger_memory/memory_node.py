@@ -24,7 +24,7 @@ from roger_common import conversions as conv
 from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
-from roger_common.ros_node import LATCHED, RELIABLE, declare_config, spin_node
+from roger_common.ros_node import LATCHED, RELIABLE, BadInput, declare_config, spin_node
 from roger_common.types import MatchOutcome, MatchResult, MemoryOp, mode_of_dim
 from roger_interfaces.msg import MemoryRequest, MemoryResult
 from roger_memory.config import MemoryConfig, MemoryNodeConfig
@@ -32,6 +32,7 @@ from roger_memory.memory import AssociativeMemory
 
 #: Replies kept for re-sent requests.
 REPLIES_KEPT = 32
+REQUEST_TOPIC = "/roger/memory/request"
 
 
 class MemoryNode(Node):
@@ -54,10 +55,10 @@ class MemoryNode(Node):
         else:
             self.memory = AssociativeMemory(self.config, seed=seed)
         self._replies: OrderedDict[int, MemoryResult] = OrderedDict()
+        self.bad_input = BadInput(self)
         self.pub_result = self.create_publisher(MemoryResult, "/roger/memory/result", RELIABLE)
         self.pub_learned = self.create_publisher(MemoryResult, "/roger/memory/learned", LATCHED)
-        self.create_subscription(MemoryRequest, "/roger/memory/request", self.on_request,
-                                 RELIABLE)
+        self.create_subscription(MemoryRequest, REQUEST_TOPIC, self.on_request, RELIABLE)
 
     def on_request(self, msg: MemoryRequest) -> None:
         """Match or store, then reply; a malformed request is logged and answered as such."""
@@ -65,11 +66,12 @@ class MemoryNode(Node):
         try:
             req = conv.msg_to_request(msg)
         except MessageError as exc:
-            self.get_logger().error(f"memory request refused: {exc}")
+            self.bad_input.drop(REQUEST_TOPIC, exc)
             return
         mode = mode_of_dim(len(req.features))
         if mode.value != self.memory.config.features:
-            self.get_logger().error(
+            self.bad_input.drop(
+                REQUEST_TOPIC,
                 f"memory request {req.request_id} refused: it carries {mode.value}-mode "
                 f"features, this memory compares {self.memory.config.features}-mode ones "
                 "(give perception and memory one feature mode)")
@@ -89,7 +91,7 @@ class MemoryNode(Node):
             result = (self.memory.handle(req) if stored is None
                       else MatchResult(MatchOutcome.NEW, stored, 1.0))
         except MessageError as exc:
-            self.get_logger().error(f"memory request {req.request_id} refused: {exc}")
+            self.bad_input.drop(REQUEST_TOPIC, f"memory request {req.request_id}: {exc}")
             return
         reply = conv.result_to_msg(req.request_id, req.op, result, self.memory.size, stamp)
         if self.memory.revision != revision and self.path is not None:

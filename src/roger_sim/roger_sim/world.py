@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+import reprlib
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,42 @@ _OBJECT_FIELDS = ("name", "shape", "position", "yaw", "size", "intensity", "weig
 _REQUIRED = ("name", "shape", "position", "size", "intensity", "weight")
 _WORLD_FIELDS = ("name", "light", "objects")
 
+# A value quoted in an error is cut short: a file may hold a structure of any size (YAML
+# aliases build 10^8 elements from a few hundred bytes) and the message stays one line.
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother, _REPR.maxlong = 2, 40, 40, 40
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = _REPR.maxfrozenset = 4
+
+
+class _Loader(yaml.SafeLoader):
+    """yaml.SafeLoader whose values that parse but cannot be built (a date such as
+    2001-13-01, ``!!float abc``, ``!!timestamp x``, an integer of more than 4300 digits)
+    are YAML errors at their line and column, not a ValueError or AttributeError from deep
+    inside PyYAML."""
+
+    def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+        try:
+            return super().construct_object(node, deep=deep)
+        except (ValueError, OverflowError, TypeError, AttributeError, KeyError,
+                IndexError) as exc:
+            value = node.value if isinstance(node, yaml.ScalarNode) else node.tag
+            raise yaml.constructor.ConstructorError(
+                None, None, f"cannot read {_show(value)} ({exc})", node.start_mark) from None
+
+
+def _show(value: Any) -> str:
+    """``value`` for an error message: repr, cut short, on one line."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
+        return f"an integer of {value.bit_length()} bits"  # repr fails beyond 4300 digits
+    return _REPR.repr(value)
+
+
+def _key(key: Any) -> str:
+    """A field name for ``where``: as written when it is a plain one, else quoted."""
+    if isinstance(key, str) and key and key.isprintable() and len(key) <= 40:
+        return key
+    return _show(key)
+
 
 def shape_height(shape: str, size: float) -> float:
     """Height of an object of ``shape`` and ``size`` standing on the ground, metres."""
@@ -59,10 +96,14 @@ def footprint_radius(shape: str, size: float) -> float:
 
 def _number(source: str, where: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise WorldFileError(source, where, f"must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise WorldFileError(source, where, f"must be finite, got {value!r}")
-    return float(value)
+        raise WorldFileError(source, where, f"must be a number, got {_show(value)}")
+    try:
+        x = float(value)
+    except OverflowError:  # an int beyond the floats
+        x = math.inf
+    if not math.isfinite(x):
+        raise WorldFileError(source, where, f"must be finite, got {_show(value)}")
+    return x
 
 
 def _in_range(source: str, where: str, value: Any, lo: float, hi: float,
@@ -75,7 +116,7 @@ def _in_range(source: str, where: str, value: Any, lo: float, hi: float,
 
 def _vector(source: str, where: str, value: Any, n: int) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise WorldFileError(source, where, f"must be a list of {n} numbers, got {value!r}")
+        raise WorldFileError(source, where, f"must be a list of {n} numbers, got {_show(value)}")
     return tuple(_number(source, f"{where}[{i}]", v) for i, v in enumerate(value))
 
 
@@ -95,27 +136,27 @@ def object_from_dict(d: dict, source: str, where: str) -> ObjectSpec:
         WorldFileError: Naming ``source``, ``where`` (with the object's name) and the field.
     """
     if not isinstance(d, dict):
-        raise WorldFileError(source, where, f"must be a mapping of fields, got {d!r}")
+        raise WorldFileError(source, where, f"must be a mapping of fields, got {_show(d)}")
     name = d.get("name")
-    label = f"{where} ({name})" if isinstance(name, str) and name else where
+    label = f"{where} ({_key(name)})" if isinstance(name, str) and name else where
     for key in d:
         if key not in _OBJECT_FIELDS:
-            raise WorldFileError(source, f"{label}.{key}",
+            raise WorldFileError(source, f"{label}.{_key(key)}",
                                  f"unknown field; allowed: {', '.join(_OBJECT_FIELDS)}")
     for key in _REQUIRED:
         if key not in d:
             raise WorldFileError(source, f"{label}.{key}", "missing required field")
     if not isinstance(name, str) or not _NAME.match(name):
         raise WorldFileError(source, f"{label}.name", "must be 1-64 letters, digits or _.- "
-                             f"without spaces, got {name!r}")
+                             f"without spaces, got {_show(name)}")
     shape = d["shape"]
     if shape not in SHAPES:
         raise WorldFileError(source, f"{label}.shape",
-                             f"unknown shape {shape!r}; use one of {', '.join(SHAPES)}")
+                             f"unknown shape {_show(shape)}; use one of {', '.join(SHAPES)}")
     texture = d.get("texture", "plain")
     if texture not in TEXTURES:
         raise WorldFileError(source, f"{label}.texture",
-                             f"unknown texture {texture!r}; use one of {', '.join(TEXTURES)}")
+                             f"unknown texture {_show(texture)}; use one of {', '.join(TEXTURES)}")
     x, y = _vector(source, f"{label}.position", d["position"], 2)
     yaw = _in_range(source, f"{label}.yaw", d.get("yaw", 0.0), -2 * math.pi, 2 * math.pi,
                     " rad")
@@ -175,17 +216,18 @@ def parse_world(data: dict, source: str) -> WorldSpec:
                              f"list, got {type(data).__name__}")
     for key in data:
         if key not in _WORLD_FIELDS:
-            raise WorldFileError(source, str(key),
+            raise WorldFileError(source, _key(key),
                                  f"unknown field; allowed: {', '.join(_WORLD_FIELDS)}")
     name = data.get("name", Path(source).stem or "world")
     if not isinstance(name, str) or not name:
-        raise WorldFileError(source, "name", f"must be a non-empty string, got {name!r}")
+        raise WorldFileError(source, "name", f"must be a non-empty string, got {_show(name)}")
     light = data.get("light", {"direction": [1.0, 0.5, 1.0]})
     if not isinstance(light, dict):
-        raise WorldFileError(source, "light", f"must be a mapping, got {light!r}")
+        raise WorldFileError(source, "light", f"must be a mapping, got {_show(light)}")
     for key in light:
         if key != "direction":
-            raise WorldFileError(source, f"light.{key}", "unknown field; allowed: direction")
+            raise WorldFileError(source, f"light.{_key(key)}",
+                                 "unknown field; allowed: direction")
     direction = _vector(source, "light.direction", light.get("direction", [1.0, 0.5, 1.0]), 3)
     if math.hypot(*direction) < 1e-6:
         raise WorldFileError(source, "light.direction", "must not be the zero vector")
@@ -193,7 +235,7 @@ def parse_world(data: dict, source: str) -> WorldSpec:
         raise WorldFileError(source, "objects", "missing required field")
     raw = data["objects"]
     if not isinstance(raw, list):
-        raise WorldFileError(source, "objects", f"must be a list, got {raw!r}")
+        raise WorldFileError(source, "objects", f"must be a list, got {_show(raw)}")
     if not raw:
         raise WorldFileError(source, "objects", "the world is empty; list at least one object")
     objects: list[ObjectSpec] = []
@@ -219,12 +261,15 @@ def load_world(path: str | Path) -> WorldSpec:
     except UnicodeDecodeError as exc:
         raise WorldFileError(source, "", f"cannot read the file: {exc}")
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise WorldFileError(source, where, f"YAML syntax error: {problem}") from None
+        kind = "value" if isinstance(exc, yaml.constructor.ConstructorError) else "syntax"
+        raise WorldFileError(source, where, f"YAML {kind} error: {problem}") from None
+    except RecursionError:  # PyYAML composes recursively: some thousand [ or { deep
+        raise WorldFileError(source, "", "YAML nested too deep") from None
     return parse_world(data, source)
 
 
