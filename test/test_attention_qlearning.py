@@ -184,10 +184,58 @@ def test_make_policy_switch_and_modes(tmp_path: Path) -> None:
         make_policy("greedy", cfg, rng)
 
 
+def test_the_visits_step_size_decays_with_each_pairs_own_updates(tmp_path: Path) -> None:
+    t = QTable(QLearningConfig(alpha=0.5, gamma=0.0, alpha_schedule="visits", alpha_k=2.0))
+    steps = []
+    for _ in range(4):
+        steps.append(t.step_size(S010, M))
+        t.update(S010, M, 1.0, S011, terminated=True)
+    assert steps == pytest.approx([0.5, 0.5 / 1.5, 0.5 / 2.0, 0.5 / 2.5])
+    assert t.step_size(S000, V) == 0.5  # another pair keeps its own count
+    q = 0.0
+    for a in steps:
+        q += a * (1.0 - q)
+    assert t.value(S010, M) == pytest.approx(q)
+    # The paper's constant: every update steps by alpha.
+    c = QTable(QLearningConfig(alpha=0.5))
+    c.update(S010, M, 1.0, S011, terminated=True)
+    assert c.step_size(S010, M) == 0.5 and c.visits[S010.index, int(M)] == 1
+    # The counts travel with the table: trained further, it goes on where it stopped.
+    t.save(tmp_path / "q.json")
+    back = QTable.load(tmp_path / "q.json")
+    assert back.config.alpha_schedule == "visits" and back.config.alpha_k == 2.0
+    assert back.step_size(S010, M) == pytest.approx(0.5 / 3.0)
+    # A table written before the schedule existed loads as constant, no visits.
+    raw = json.loads((tmp_path / "q.json").read_text())
+    for key in ("alpha_schedule", "alpha_k", "visits"):
+        del raw[key]
+    (tmp_path / "old.json").write_text(json.dumps(raw))
+    old = QTable.load(tmp_path / "old.json")
+    assert old.config.alpha_schedule == "constant" and not old.visits.any()
+
+
+def test_a_step_size_that_decays_settles_where_the_constant_one_keeps_jumping() -> None:
+    """Noisy rewards (the robot's): the last 200 of 2000 updates of one pair move the
+    paper's constant-alpha value by far more than the decaying one's."""
+    rng = np.random.default_rng(5)
+    rewards = rng.choice([0.0, 1.0], size=2000, p=[0.7, 0.3])
+    spread = {}
+    for schedule in ("constant", "visits"):
+        t = QTable(QLearningConfig(alpha_schedule=schedule))
+        tail = []
+        for i, r in enumerate(rewards):
+            t.update(S010, M, float(r), S011, terminated=True)
+            if i >= 1800:
+                tail.append(t.value(S010, M))
+        spread[schedule] = max(tail) - min(tail)
+    assert spread["visits"] < 0.25 * spread["constant"], spread
+
+
 @pytest.mark.parametrize(
     ("kwargs", "field"),
     [({"alpha": 0.0}, "alpha"), ({"alpha": 1.5}, "alpha"), ({"gamma": -0.1}, "gamma"),
-     ({"epsilon": 2.0}, "epsilon"), ({"gamma": float("nan")}, "gamma")],
+     ({"epsilon": 2.0}, "epsilon"), ({"gamma": float("nan")}, "gamma"),
+     ({"alpha_schedule": "cosine"}, "alpha_schedule"), ({"alpha_k": 0.0}, "alpha_k")],
 )
 def test_qlearning_config_rejects(kwargs: dict[str, float], field: str) -> None:
     with pytest.raises(ConfigError, match=field):
@@ -202,3 +250,15 @@ def test_qlearning_config_rejects(kwargs: dict[str, float], field: str) -> None:
 def test_attention_config_rejects(kwargs: dict[str, object], field: str) -> None:
     with pytest.raises(ConfigError, match=field):
         AttentionConfig(**kwargs)
+
+
+def test_a_table_keeps_its_step_size_schedule_when_loaded_with_a_run_config(
+        tmp_path: Path) -> None:
+    """``roger train --alpha-schedule visits`` seeds the table with its schedule; every
+    training run loads it with the run's own QLearningConfig (constant by default)."""
+    from roger_experiments.train import fresh_table
+    fresh_table(tmp_path, "visits")
+    table = QTable.load(tmp_path / "qtable.json", QLearningConfig(epsilon=0.2))
+    assert table.config.alpha_schedule == "visits" and table.config.epsilon == 0.2
+    fresh_table(tmp_path, "constant")
+    assert not (tmp_path / "qtable.json").exists()  # the paper's: a fresh default table

@@ -63,27 +63,44 @@ class RewardConfig:
             _check_range("RewardConfig", name, getattr(self, name), 0.0, 1e6)
 
 
+#: Step-size schedules of QLearningConfig.alpha_schedule.
+ALPHA_SCHEDULES: tuple[str, ...] = ("constant", "visits")
+
+
 @dataclass(frozen=True)
 class QLearningConfig:
     """Tabular Q-learning of section 4.2.
 
     Attributes:
-        alpha: Learning rate (the paper's 0.5).
+        alpha: Learning rate (the paper's 0.5); with ``alpha_schedule`` "visits", the
+            step size of a pair's first update.
         gamma: Discount factor (the paper's 0.1).
         epsilon: Exploration probability of the epsilon-greedy choice while learning.
         initial_q: Value of every Q(s, a) of a fresh table.
+        alpha_schedule: "constant" (the paper's: every update steps by ``alpha``) or
+            "visits": the n-th update of a pair (s, a) steps by alpha / (1 + n / alpha_k),
+            n counted from 0, a step size that decays with the pair's visits (the sum of
+            the steps diverges and that of their squares converges, as tabular Q-learning's
+            convergence asks) so that the table settles.
+        alpha_k: Visits of a pair over which the "visits" step size halves.
     """
 
     alpha: float = 0.5
     gamma: float = 0.1
     epsilon: float = field(default=0.1, metadata={"live": True})
     initial_q: float = 0.0
+    alpha_schedule: str = "constant"
+    alpha_k: float = 20.0
 
     def __post_init__(self) -> None:
         _check_range("QLearningConfig", "alpha", self.alpha, 0.0, 1.0, low_open=True)
         _check_range("QLearningConfig", "gamma", self.gamma, 0.0, 1.0)
         _check_range("QLearningConfig", "epsilon", self.epsilon, 0.0, 1.0)
         _check_range("QLearningConfig", "initial_q", self.initial_q, -1e6, 1e6)
+        if self.alpha_schedule not in ALPHA_SCHEDULES:
+            raise ConfigError(f"QLearningConfig.alpha_schedule must be one of "
+                              f"{', '.join(ALPHA_SCHEDULES)}, got {self.alpha_schedule!r}")
+        _check_range("QLearningConfig", "alpha_k", self.alpha_k, 0.0, 1e9, low_open=True)
 
 
 @dataclass(frozen=True)

@@ -2,12 +2,16 @@
 
 Q(s, a) += alpha (r + gamma max_{a' in A(s')} Q(s', a') - Q(s, a))   (section 2)
 
+with the paper's constant alpha, or (``QLearningConfig.alpha_schedule`` "visits") a step
+size alpha / (1 + n(s, a) / alpha_k) that decays with the pair's earlier updates n(s, a).
+
 The table is saved as JSON through roger_common.atomic, so a crash leaves either the old
 file or the new one.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from collections.abc import Sequence
@@ -18,7 +22,7 @@ import numpy as np
 from roger_attention.config import QLearningConfig
 from roger_attention.fsm import ACTIONS, STATES, State, possible_actions
 from roger_common.atomic import atomic_write_bytes
-from roger_common.errors import MemoryFileError
+from roger_common.errors import ConfigError, MemoryFileError
 from roger_common.types import Action
 
 #: Tag written into every Q-table file and checked on load.
@@ -31,6 +35,8 @@ class QTable:
     Attributes:
         config: Learning rate, discount, exploration, initial value.
         q: Array of shape (len(STATES), len(ACTIONS)).
+        visits: Updates of each (state, action) so far, same shape (saved with the table:
+            a table trained further goes on with its step sizes).
         td_errors: TD error of each update, in order.
     """
 
@@ -38,7 +44,15 @@ class QTable:
         """Create a table with every Q(s, a) at ``config.initial_q``."""
         self.config = config if config is not None else QLearningConfig()
         self.q = np.full((len(STATES), len(ACTIONS)), self.config.initial_q, dtype=float)
+        self.visits = np.zeros((len(STATES), len(ACTIONS)), dtype=np.int64)
         self.td_errors: list[float] = []
+
+    def step_size(self, state: State, action: Action) -> float:
+        """The step size of the next update of (s, a) (``QLearningConfig.alpha_schedule``)."""
+        cfg = self.config
+        if cfg.alpha_schedule == "constant":
+            return cfg.alpha
+        return cfg.alpha / (1.0 + self.visits[state.index, int(action)] / cfg.alpha_k)
 
     def value(self, state: State, action: Action) -> float:
         """Q(s, a)."""
@@ -101,7 +115,8 @@ class QTable:
             target += self.config.gamma * self.best_value(next_state, next_allowed)
         i, j = state.index, int(action)
         td = float(target - self.q[i, j])
-        self.q[i, j] += self.config.alpha * td  # section 2's update rule
+        self.q[i, j] += self.step_size(state, action) * td  # section 2's update rule
+        self.visits[i, j] += 1
         self.td_errors.append(td)
         return td
 
@@ -115,8 +130,11 @@ class QTable:
             "gamma": self.config.gamma,
             "epsilon": self.config.epsilon,
             "initial_q": self.config.initial_q,
+            "alpha_schedule": self.config.alpha_schedule,
+            "alpha_k": self.config.alpha_k,
             "updates": len(self.td_errors),
             "q": self.q.tolist(),
+            "visits": self.visits.tolist(),
         }
 
     def save(self, path: str | os.PathLike[str], durable: bool = True) -> None:
@@ -132,6 +150,8 @@ class QTable:
         Args:
             path: The file.
             config: Learning parameters for further training (default: those in the file).
+                The step-size schedule (``alpha_schedule``, ``alpha_k``) is the table's
+                own, saved with its visit counts: a file that names one keeps it.
 
         Raises:
             MemoryFileError: The file is missing, not JSON, or not a Q-table of these
@@ -151,14 +171,26 @@ class QTable:
             raise MemoryFileError(f"{p}: Q-table states/actions do not match this FSM")
         try:
             q = np.asarray(raw["q"], dtype=float)
+            # Tables written before the step-size schedule existed: constant, no visits.
+            visits = np.asarray(raw.get("visits", np.zeros_like(q)), dtype=np.int64)
             if config is None:
-                config = QLearningConfig(alpha=raw["alpha"], gamma=raw["gamma"],
-                                         epsilon=raw["epsilon"], initial_q=raw["initial_q"])
-        except (KeyError, TypeError, ValueError) as exc:
+                config = QLearningConfig(
+                    alpha=raw["alpha"], gamma=raw["gamma"], epsilon=raw["epsilon"],
+                    initial_q=raw["initial_q"],
+                    alpha_schedule=raw.get("alpha_schedule", "constant"),
+                    alpha_k=raw.get("alpha_k", QLearningConfig.alpha_k))
+            elif "alpha_schedule" in raw:
+                config = dataclasses.replace(config, alpha_schedule=raw["alpha_schedule"],
+                                             alpha_k=raw.get("alpha_k", config.alpha_k))
+        except (KeyError, TypeError, ValueError, ConfigError) as exc:
             raise MemoryFileError(f"{p}: corrupt Q-table ({exc})") from exc
         if q.shape != (len(STATES), len(ACTIONS)) or not np.all(np.isfinite(q)):
             raise MemoryFileError(
                 f"{p}: Q-values must be a finite {len(STATES)}x{len(ACTIONS)} table")
+        if visits.shape != q.shape or np.any(visits < 0):
+            raise MemoryFileError(f"{p}: visits must be a {len(STATES)}x{len(ACTIONS)} "
+                                  f"table of counts >= 0")
         table = cls(config)
         table.q = q
+        table.visits = visits
         return table

@@ -575,7 +575,7 @@ def replay(bag: Path, out_dir: Path) -> dict[str, Any]:
     """
     from roger_bringup.monitor_logic import RunMonitor
     from roger_experiments import plots
-    from roger_experiments.compare import RunResult, read_cycles
+    from roger_experiments.results import RunResult, read_cycles
 
     t0 = time.monotonic()
     counts = message_counts(bag)

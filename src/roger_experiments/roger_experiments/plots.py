@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import matplotlib
 
@@ -11,8 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-if TYPE_CHECKING:
-    from roger_experiments.compare import RunResult
+from roger_experiments.results import RunResult  # noqa: E402
 
 STYLE: dict[str, dict[str, Any]] = {
     "qlearning": dict(color="tab:blue", linestyle=":", label="Q-learning"),
@@ -163,3 +162,27 @@ def fig6(results: list[RunResult], path: Path) -> None:
     td = np.array([float(row["td_error"]) for row in rows])
     td_convergence(td, path, starts, subtitle="the updates of these runs",
                    actions=[row["action"] for row in rows])
+
+
+def distribution(values: dict[str, dict[str, list[float]]], what: str, path: Path) -> None:
+    """One Table 2 column across worlds (``roger sweep``): per feature mode, a box and the
+    points of each policy's per-world means."""
+    modes = list(values)
+    fig, axes = plt.subplots(1, len(modes), figsize=(4.2 * len(modes), 4), sharey=True,
+                             squeeze=False)
+    for ax, mode in zip(axes[0], modes, strict=True):
+        policies = [p for p in STYLE if p in values[mode]]
+        data = [values[mode][p] for p in policies]
+        ax.boxplot(data, widths=0.5, showfliers=False)
+        for k, (policy, ys) in enumerate(zip(policies, data, strict=True)):
+            xs = np.full(len(ys), k + 1.0) + np.linspace(-0.08, 0.08, len(ys))
+            ax.plot(xs, ys, "o", color=STYLE[policy]["color"], alpha=0.6, markersize=4)
+        ax.set_xticks(range(1, len(policies) + 1),
+                      [STYLE[p]["label"] for p in policies])
+        ax.set_title(f"{mode} features")
+        ax.grid(alpha=0.3, axis="y")
+    axes[0][0].set_ylabel(f"{what} (mean per world)")
+    fig.suptitle(f"Table 2 across worlds: {what}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

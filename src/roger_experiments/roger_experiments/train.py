@@ -26,15 +26,19 @@ from typing import Any
 import numpy as np
 import yaml
 
+from roger_attention.config import QLearningConfig
 from roger_attention.fsm import STATES, possible_actions
 from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
-from roger_common.types import WorldSpec
+from roger_common.types import DEFAULT_FEATURE_MODE, WorldSpec
+from roger_experiments import plots
 from roger_experiments.evaluation import ACTION_NAMES
 from roger_experiments.progress import ProgressBar
 from roger_sim.world import load_world, world_to_dict
 from roger_sim.worldgen import random_world
 
+#: The feature mode a training runs in unless told.
+DEFAULT_FEATURES = DEFAULT_FEATURE_MODE.value
 #: Window of the moving average of |TD error| in Figure 6 (Q updates).
 MOVING_AVERAGE = 100
 #: The Q-values Figure 6 follows: the choices of an undetermined entry, mapped or not.
@@ -254,8 +258,6 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
 
 def plot_training(log: TrainingLog, path: Path, alpha: float, subtitle: str) -> None:
     """Figure 6 of a training: |TD error| per trial, its moving average, the Q-values."""
-    from roger_experiments import plots
-
     plots.td_convergence(log.td, path, log.run_starts, MOVING_AVERAGE, subtitle,
                          actions=log.actions,
                          q_values=log.q_history(alpha) if all(log.states) else None)
@@ -264,3 +266,149 @@ def plot_training(log: TrainingLog, path: Path, alpha: float, subtitle: str) -> 
 def describe_random(spec: RandomWorlds) -> dict[str, Any]:
     """A RandomWorlds as JSON-ready data for train.json."""
     return {"generator": "roger_sim.worldgen.random_world", **asdict(spec)}
+
+
+def run_in_process(world: Path, seed: int, qtable: Path, run_dir: Path, cycles: int,
+                   features: str) -> dict[str, Any]:
+    """One learning Q-learning run of the core loop in this process (no ROS); the loop saves
+    the Q-table it learnt to ``qtable`` when it closes."""
+    from roger_experiments.core_loop import run_core
+
+    t0 = time.monotonic()
+    recorder, _ = run_core(load_world(world), "qlearning", cycles, seed=seed, out=run_dir,
+                           qtable_path=qtable, features=features)
+    assert recorder is not None
+    return recorder.close(time.monotonic() - t0)
+
+
+def fresh_table(out: Path, alpha_schedule: str = "constant") -> None:
+    """Start training from a fresh table: ``out/qtable.json`` removed, or (a schedule other
+    than the paper's constant step size) written afresh with that schedule, which the table
+    keeps through training (``QTable.load``)."""
+    path = out / "qtable.json"
+    if path.exists():
+        path.unlink()
+    if alpha_schedule != "constant":
+        out.mkdir(parents=True, exist_ok=True)
+        QTable(QLearningConfig(alpha_schedule=alpha_schedule)).save(path)
+
+
+def train_in_process(spec: RandomWorlds, seeds: list[int], cycles: int, out: Path,
+                     progress: bool = True, features: str | None = None,
+                     files: list[Path] | None = None,
+                     alpha_schedule: str = "constant") -> dict[str, Any]:
+    """``roger train`` in process from a fresh table: the world ``files``, then the random
+    worlds of ``spec`` (written to ``out/worlds``), every one with every seed
+    (``alpha_schedule``: ``QLearningConfig.alpha_schedule`` of the table)."""
+    worlds = list(files or [])
+    made: dict[str, Any] = {"files": [str(w) for w in worlds]}
+    if spec.count > 0:
+        worlds += write_worlds(spec.worlds(), out / "worlds")
+        made["random"] = describe_random(spec)
+    fresh_table(out, alpha_schedule)
+
+    def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict[str, Any]:
+        return run_in_process(world, seed, qtable, run_dir, cycles,
+                              features or DEFAULT_FEATURES)
+    return train(worlds, seeds, out, run_one, progress=progress, describe=made)
+
+
+@dataclass(frozen=True)
+class TrainDraw:
+    """One training draw of a sweep: a fresh Q-table learnt in process on random worlds
+    (``worlds``) with every seed, in one feature mode.
+
+    Attributes:
+        draw: The draw's number (1, 2, ...): it picks the worlds' seeds.
+        features: Feature mode of the training runs.
+        worlds: The random training worlds.
+        seeds: Run seeds per world.
+        cycles: Control cycles per run.
+    """
+
+    draw: int
+    features: str
+    worlds: RandomWorlds
+    seeds: tuple[int, ...] = (0, 1)
+    cycles: int = 204
+
+
+def train_draw(spec: TrainDraw, out: Path) -> dict[str, Any]:
+    """Train one draw into ``out`` (qtable.json, train.json, Figure 6, the runs); returns
+    the train.json summary. A pure function of ``spec`` (a Ray task of ``roger sweep``)."""
+    return train_in_process(spec.worlds, list(spec.seeds), spec.cycles, out, progress=False,
+                            features=spec.features)
+
+
+@dataclass(frozen=True)
+class TrainedTable:
+    """The Q-table the Q-learning policy runs, greedy and frozen, and where it came from.
+
+    Attributes:
+        qtable: The table file.
+        origin: How it came: "trained now" (``roger train`` run first) or "given".
+        training: The ``train.json`` written beside it by ``roger train``, if any.
+        world_seen: Whether the evaluation world is among the training worlds (by
+            fingerprint); None when the training is unknown.
+    """
+
+    qtable: Path
+    origin: str
+    training: dict[str, Any] | None
+    world_seen: bool | None
+
+    @classmethod
+    def of(cls, qtable: Path, world: WorldSpec, origin: str) -> TrainedTable:
+        """Describe ``qtable`` for an evaluation on ``world``."""
+        training = read_training(qtable)
+        seen = None
+        if training is not None:
+            prints = {w["fingerprint"] for w in training.get("worlds", [])}
+            seen = world_fingerprint(world) in prints
+        return cls(qtable, origin, training, seen)
+
+    def td_errors(self) -> Path | None:
+        """The training's ``td_errors.csv`` (Figure 6), if it is there."""
+        path = self.qtable.with_name("td_errors.csv")
+        return path if path.exists() else None
+
+    def markdown(self) -> str:
+        """What the report says about the table."""
+        lines = ["## The Q-learning policy", "",
+                 f"Greedy and frozen (no learning during these runs): the Q-table "
+                 f"`{self.qtable}`, {self.origin}."]
+        t = self.training
+        if t is None:
+            lines.append("No `train.json` beside it: what it was trained on is unknown.")
+        else:
+            names = ", ".join(f"`{w['name']}`" for w in t.get("worlds", []))
+            seeds = ", ".join(str(s) for s in t.get("seeds", []))
+            lines.append(f"Trained by `roger train` in {t.get('runs')} runs ({t.get('updates')} "
+                         f"Q updates) on the worlds {names} with seeds {seeds}.")
+            lines.append("The evaluation world is **one of the training worlds**: this is no "
+                         "test on an unseen world." if self.world_seen else
+                         "The evaluation world is not among them (compared by content).")
+            first, last = t.get("mean_abs_td_first_10pct"), t.get("mean_abs_td_last_10pct")
+            if first is not None and last is not None:
+                lines.append(f"Mean |TD error| over the first tenth of training {first:.3f}, "
+                             f"over the last tenth {last:.3f} (Figure 6).")
+            changes = t.get("greedy_changes_second_half") or {}
+            moving = {bits: n for bits, n in changes.items() if n}
+            if changes:
+                lines.append(
+                    "In the second half of training the greedy action changed "
+                    + (", ".join(f"{n} times in {bits}" for bits, n in moving.items())
+                       if moving else "in no state")
+                    + (": the values had not settled, and the table run here is where "
+                       "training stopped." if moving else "."))
+            q = t.get("q", {})
+            if q:
+                acts = ["attention_shift", "visual_improvement", "haptic_improvement",
+                        "map_update"]
+                lines += ["", "| state | shift | visual | haptic | map update | greedy |",
+                          "|---|---|---|---|---|---|"]
+                for bits, row in q.items():
+                    cells = [f"{row[a]:.3f}" if a in row else "-" for a in acts]
+                    greedy = ", ".join(t.get("greedy", {}).get(bits, []))
+                    lines.append(f"| {bits} | " + " | ".join(cells) + f" | {greedy} |")
+        return "\n".join(lines) + "\n"
