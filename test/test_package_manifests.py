@@ -21,10 +21,11 @@ ROSDEP_KEYS: dict[str, str] = {
     "numpy": "python3-numpy", "cv2": "python3-opencv", "yaml": "python3-yaml",
     "torch": "python3-torch", "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
     "pybullet": "python3-pybullet-pip", "gymnasium": "python3-gymnasium-pip",
-    "mcap": "python3-mcap-pip", "rich": "python3-rich"}
+    "mcap": "python3-mcap-pip", "rich": "python3-rich", "ray": "python3-ray-pip"}
 #: Imported by name at run time (importlib), so invisible to ``ast``.
 DYNAMIC: dict[str, set[str]] = {
-    "roger_bringup": {"rosgraph_msgs", "sensor_msgs", "roger_interfaces"}}
+    "roger_bringup": {"rosgraph_msgs", "sensor_msgs", "roger_interfaces", "std_msgs", "tf2_msgs",
+                      "visualization_msgs"}}
 PACKAGES = sorted(p.name for p in SRC.iterdir() if (p / "setup.py").exists())
 
 

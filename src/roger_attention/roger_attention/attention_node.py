@@ -20,17 +20,27 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
+from visualization_msgs.msg import MarkerArray
 
 from roger_attention import conversions as conv
 from roger_attention import session as ses
 from roger_attention.config import AttentionConfig, AttentionNodeConfig
 from roger_attention.controller import AttentionController
+from roger_attention.markers import MapView
 from roger_attention.policies import make_policy
 from roger_common import conversions as common
 from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
-from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, REPORTS, declare_config, spin_node
+from roger_common.ros_node import (
+    IMAGES,
+    LATCHED,
+    RELIABLE,
+    REPORTS,
+    BadInput,
+    declare_config,
+    spin_node,
+)
 from roger_common.types import CameraModel, EyePose, MatchResult, Roi
 from roger_interfaces.msg import (
     ActionGoal,
@@ -74,6 +84,10 @@ class AttentionNode(Node):
         self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", REPORTS)
         self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", REPORTS)
         self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
+        # The map as RViz and Foxglove draw it (roger_attention.markers).
+        self.map_view = MapView()
+        self.pub_markers = self.create_publisher(MarkerArray, "/roger/spatial_map/markers",
+                                                 LATCHED)
         # Geometry and camera first: when a frame's geometry and its ROI array are taken in
         # the same executor pass, callbacks run in subscription order.
         self.create_subscription(StereoGeometry, "/roger/stereo_geometry", self.on_geometry,
@@ -84,6 +98,7 @@ class AttentionNode(Node):
         self._geometry: dict[tuple[int, int], EyePose] = {}
         self._camera: CameraModel | None = None
         self._started = self._done_logged = False
+        self.bad_input = BadInput(self)
         # Wall clock: the simulated clock only advances when a goal is executed, so a
         # sim-time timer would never fire while the graph waits for its first goal.
         self.create_timer(0.05, self.tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -117,24 +132,28 @@ class AttentionNode(Node):
             self._emit(self.session.start())
 
     def on_rois(self, msg: RoiArray) -> None:
-        """A stereo pair was perceived: hand its ROIs and eye pose to the session."""
-        rois: Sequence[Roi] = []
+        """A stereo pair was perceived: hand its ROIs and eye pose to the session.
+
+        An unusable array is dropped, not taken for an empty one: it may come from outside
+        the graph, and the session's retry brings the pair's own array again."""
         try:
-            rois = common.msg_to_rois(msg)
+            rois: Sequence[Roi] = common.msg_to_rois(msg)
         except MessageError as exc:
-            self.get_logger().error(f"ROI array of goal {msg.goal_id} unusable: {exc}")
+            self.bad_input.drop("/roger/rois", exc)
+            return
         stamp = msg.header.stamp
         self._emit(self.session.on_rois(int(msg.goal_id), rois, common.time_to_seconds(stamp),
                                         self._camera,
                                         self._geometry.get((stamp.sec, stamp.nanosec))))
 
     def on_result(self, msg: MemoryResult) -> None:
-        """The memory answered a match or store."""
-        result: MatchResult | None = None
+        """The memory answered a match or store (an unusable answer is dropped: the
+        session's retry asks again)."""
         try:
-            result = common.msg_to_result(msg)
-        except ValueError as exc:  # treated like no answer: the cycle ends as "lost"
-            self.get_logger().error(f"memory result {msg.request_id} unusable: {exc}")
+            result: MatchResult = common.msg_to_result(msg)
+        except MessageError as exc:
+            self.bad_input.drop("/roger/memory/result", exc)
+            return
         self._emit(self.session.on_result(int(msg.request_id), result, int(msg.memory_size)))
 
     def _emit(self, out: list[ses.Outgoing]) -> None:
@@ -147,8 +166,11 @@ class AttentionNode(Node):
                 self.pub_request.publish(common.request_to_msg(item.request, item.stamp))
             elif isinstance(item, ses.Report):
                 self.pub_state.publish(conv.report_to_msg(item, policy))
+                self.map_view.note(item.record)
             elif isinstance(item, ses.PublishMap):
                 self.pub_map.publish(conv.publish_map_to_msg(item))
+                self.pub_markers.publish(conv.markers_msg(self.map_view.markers(item.entries),
+                                                          item.stamp))
             elif isinstance(item, ses.PublishMetrics):
                 if item.done and not self._done_logged:
                     self._done_logged = True
@@ -161,7 +183,7 @@ class AttentionNode(Node):
         try:
             pose = common.poses_from_geometry(msg)[0]
         except MessageError as exc:
-            self.get_logger().error(f"stereo geometry ignored: {exc}")
+            self.bad_input.drop("/roger/stereo_geometry", exc)
             return
         self._geometry[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = pose
         while len(self._geometry) > 16:
@@ -172,7 +194,7 @@ class AttentionNode(Node):
         try:
             self._camera = common.camera_from_info(msg)
         except MessageError as exc:
-            self.get_logger().error(f"camera info ignored: {exc}")
+            self.bad_input.drop("/roger/left/camera_info", exc)
 
     def destroy_node(self) -> None:
         """Flush the per-cycle files (resume state, Q-table) to the disk, then go."""

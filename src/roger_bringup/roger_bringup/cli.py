@@ -5,22 +5,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from roger_attention.config import ALPHA_SCHEDULES
 from roger_common.errors import RogerError
 
 if TYPE_CHECKING:
-    from roger_common.types import WorldSpec
-    from roger_experiments.compare import TrainedTable
+    from roger_experiments.ray_runner import RayRunner
+    from roger_experiments.runners import RunFn, Runner, RunSpec
     from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
 DEFAULT_WORLD = Path("worlds/table1.yaml")
 #: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
 DEMO_WORLD = Path("worlds/inspection.yaml")
-#: Most cycles a run until the robot's own completion may take.
-COMPLETE_MAX = 2000
 
 
 def _add_features_arg(p: argparse.ArgumentParser) -> None:
@@ -30,6 +30,19 @@ def _add_features_arg(p: argparse.ArgumentParser) -> None:
                    help="feature mode of perception and memory: paper (the eleven features "
                         "of equations 1-5) or extended (those plus shape from stereo and "
                         "touch, docs/perception.md); default %(default)s")
+
+
+def _add_workers_args(p: argparse.ArgumentParser, default: int, always_ray: bool = False
+                      ) -> None:
+    p.add_argument("--workers", type=int, default=default, metavar="N",
+                   help="runs in parallel at most, every run a Ray task (0: as many as Ray "
+                        "has CPUs); default %(default)s" if always_ray else
+                        "runs in parallel at most, as Ray tasks (1 without --address: one "
+                        "after another in this process; 0: as many as Ray has CPUs); "
+                        "default %(default)s")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="join the Ray cluster at ADDR (default $RAY_ADDRESS, else an "
+                        "embedded local Ray on this machine's cores, loopback only)")
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -117,48 +130,64 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _training_worlds(files: list[Path] | None, spec: RandomWorlds | None,
-                     folder: Path) -> tuple[list[Path], dict]:
-    """The training world files: the files given, then the random worlds of ``spec``
-    written into ``folder``; and how they were made (for train.json)."""
-    from roger_experiments.train import describe_random, write_worlds
+def _train(worlds: list[Path] | None, spec: RandomWorlds | None, seeds: list[int],
+           cycles: int, out: Path, graph: bool, quiet: bool, features: str,
+           alpha_schedule: str = "constant") -> dict:
+    """Q-learning over the world files and the random worlds of ``spec``, every one with
+    every seed, into ``out`` (in process unless ``graph``)."""
+    from roger_experiments.train import RandomWorlds, train_in_process
 
-    worlds = list(files or [])
-    made: dict = {"files": [str(w) for w in worlds]}
+    if not graph:
+        return train_in_process(spec or RandomWorlds(count=0), seeds, cycles, out,
+                                progress=not quiet, features=features, files=worlds,
+                                alpha_schedule=alpha_schedule)
+    from roger_bringup.run import RunOptions, run_graph
+    from roger_experiments.train import describe_random, fresh_table, train, write_worlds
+
+    files = list(worlds or [])
+    made: dict = {"files": [str(w) for w in files]}
     if spec is not None:
-        worlds += write_worlds(spec.worlds(), folder)
+        files += write_worlds(spec.worlds(), out / "worlds")
         made["random"] = describe_random(spec)
-    return worlds, made
+
+    def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
+        return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
+                                    cycles=cycles, seed=seed, qtable=qtable,
+                                    features=features, progress=not quiet))
+    fresh_table(out, alpha_schedule)
+    return train(files, seeds, out, run_one, progress=not quiet, describe=made)
 
 
-def _train(worlds: list[Path], made: dict, seeds: list[int], cycles: int, out: Path,
-           graph: bool, quiet: bool, features: str) -> dict:
-    """Q-learning over ``worlds`` x ``seeds`` into ``out`` (in process unless ``graph``)."""
-    import time
+def _runner(args: argparse.Namespace, graph: bool) -> tuple[Runner, bool]:
+    """The runner of a compare or demo: one run after another in this process with
+    ``--workers 1`` and no ``--address``, else Ray tasks (embedded Ray, or the cluster).
+    Returns it and whether Ray was started (``stop_ray`` when done)."""
+    from roger_experiments.runners import SequentialRunner, run_in_process
 
-    from roger_experiments.train import train
-
+    run: RunFn = run_in_process
     if graph:
-        from roger_bringup.run import RunOptions, run_graph
+        from roger_bringup.graph_run import run_spec_graph, run_spec_graph_quiet
+        run = run_spec_graph_quiet
+    workers = args.workers if args.workers and args.workers > 0 else None
+    address = getattr(args, "address", None)
+    if workers == 1 and not address:
+        if graph:
+            def run_loud(spec: RunSpec, out: Path) -> dict:
+                return run_spec_graph(spec, out, progress=not args.quiet)
+            run = run_loud
+        return SequentialRunner(run), False
+    from roger_experiments.ray_runner import RayRunner, code_version, start_ray
+    start_ray(address, workers)
+    domains = _domains() if graph else ()
+    return RayRunner(run, workers=workers, domains=domains,
+                     expect_version=code_version()), True
 
-        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
-            return run_graph(RunOptions(world=world, out=run_dir, policy="qlearning",
-                                        cycles=cycles, seed=seed, qtable=qtable,
-                                        features=features, progress=not quiet))
-    else:
-        from roger_experiments.core_loop import run_core
-        from roger_sim.world import load_world
 
-        def run_one(world: Path, seed: int, qtable: Path, run_dir: Path) -> dict:
-            t0 = time.monotonic()
-            # The loop saves the Q-table it learnt to ``qtable`` when it closes.
-            recorder, _ = run_core(load_world(world), "qlearning", cycles, seed=seed,
-                                   out=run_dir, qtable_path=qtable, features=features)
-            assert recorder is not None
-            return recorder.close(time.monotonic() - t0)
-    if (out / "qtable.json").exists():
-        (out / "qtable.json").unlink()  # training starts from a fresh table
-    return train(worlds, seeds, out, run_one, progress=not quiet, describe=made)
+def _domains() -> tuple[int, ...]:
+    """The ROS domain ids a parallel runner hands its graph runs, one per run in flight,
+    so that no two runs on one host share one (``graph_run.free_domains``)."""
+    from roger_bringup.graph_run import free_domains
+    return free_domains()
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -166,98 +195,97 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     The Q-learning policy runs a trained Q-table, greedy and frozen: ``--qtable FILE``, or
     one ``roger train`` learns first (in process) on random worlds other than this one.
+    The experiment itself is ``roger_experiments.table2.run_table2``.
     """
-    from roger_experiments.compare import TrainedTable
+    from roger_experiments.table2 import Table2Spec, run_table2
     from roger_experiments.train import RandomWorlds
-    from roger_sim.world import load_world
 
-    world = load_world(args.world)
-    seeds = list(range(args.seed0, args.seed0 + args.seeds))
     if args.qtable is not None:
         from roger_attention.qlearning import QTable
         QTable.load(args.qtable)  # a missing or corrupt table is refused before any run
-        qtable, origin = args.qtable, "given with --qtable"
-    else:
-        spec = RandomWorlds(count=args.train_worlds)
-        train_out = args.out / "train"
-        print(f"training the Q-learning policy first: {spec.count} random worlds (seeds "
-              f"{spec.seed0}-{spec.seed0 + spec.count - 1}) x seeds 0-{args.train_seeds - 1}, "
-              f"{args.cycles} cycles each, in process -> {train_out}")
-        files, made = _training_worlds(None, spec, train_out / "worlds")
-        _train(files, made, list(range(args.train_seeds)), args.cycles, train_out,
-               graph=False, quiet=args.quiet, features=args.features)
-        qtable, origin = train_out / "qtable.json", "trained now by `roger train` (in process)"
-    trained = TrainedTable.of(qtable, world, origin)
-    if trained.world_seen:
-        print(f"roger compare: warning: {args.world} is one of the worlds {qtable} was "
-              "trained on", file=sys.stderr)
-    modes = [args.features] + [m for m in (getattr(args, "also_modes", None) or [])
-                               if m != args.features]
-    results = {}
-    for mode in modes:
+    spec = Table2Spec(
+        world=args.world, seeds=tuple(range(args.seed0, args.seed0 + args.seeds)),
+        cycles=args.cycles, features=args.features,
+        also_modes=tuple(getattr(args, "also_modes", None) or ()),
+        stable_cycles=args.stable_cycles, qtable=args.qtable,
+        training=RandomWorlds(count=args.train_worlds), train_seeds=args.train_seeds)
+    runner, started = _runner(args, graph=not args.in_process)
+    try:
+        results = run_table2(spec, args.out, runner, progress=not args.quiet)
+    finally:
+        if started:
+            from roger_experiments.ray_runner import stop_ray
+            stop_ray()
+    for mode in spec.modes():
         out = args.out if mode == args.features else args.out / mode
-        if len(modes) > 1:
+        trained = results[mode]["trained"]
+        if mode == args.features and trained.world_seen:
+            print(f"roger compare: warning: {args.world} is one of the worlds "
+                  f"{trained.qtable} was trained on", file=sys.stderr)
+        if len(spec.modes()) > 1:
             print(f"\nfeature mode {mode} -> {out}")
-        results[mode] = _compare_mode(args, world, seeds, qtable, trained, mode, out)
         print()
         print((out / "table2.md").read_text())
-        print(f"Q-learning policy: {qtable}, {origin}, greedy and frozen")
+        print(f"Q-learning policy: {trained.qtable}, {trained.origin}, greedy and frozen")
         for c in results[mode]["claims"]:
             print(f"  {c['verdict']:>26}: {c['claim']} ({c['holds_in']}/{c['seeds']} seeds)")
         c = results[mode]["completion"]
         if c is not None:
             print(f"  {c['verdict']:>26}: {c['claim']} ({c['every_object_visited']}/"
                   f"{c['runs']} runs; the robot's rule ended {c['complete']}/{c['runs']})")
-    if len(modes) > 1:
-        from roger_common.atomic import atomic_write_bytes
-        from roger_experiments.compare import modes_markdown
-        side = modes_markdown(results, str(args.world))
-        atomic_write_bytes(args.out / "modes.md", side.encode())
-        report = args.out / "report.md"
-        atomic_write_bytes(report, (report.read_text() + "\n" + side).encode())
-        print(side)
+    if len(spec.modes()) > 1:
+        print((args.out / "modes.md").read_text())
     print(f"\nfigures: {args.out / 'fig4.png'}, {args.out / 'fig5.png'}, "
           f"{args.out / 'fig6.png'}; report: {args.out / 'report.md'}")
     return 0
 
 
-def _compare_mode(args: argparse.Namespace, world: WorldSpec, seeds: list[int], qtable: Path,
-                  trained: TrainedTable, features: str, out: Path) -> dict:
-    """Both policies, every seed, one feature mode, into ``out``: what ``compare`` returns."""
-    from roger_experiments.compare import compare
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """``roger sweep``: Table 2 over worlds x seeds x policies x feature modes x training
+    draws, every run a Ray task; resumes from the cells already in DIR."""
+    from roger_experiments.ray_runner import code_version, start_ray, stop_ray
+    from roger_experiments.sweep import load_spec, run_sweep
 
-    stable = args.stable_cycles
-    if args.in_process:
-        from roger_experiments.core_loop import run_core
+    spec = load_spec(args.spec)
+    version = code_version()
+    start_ray(args.address, args.workers if args.workers and args.workers > 0 else None)
+    try:
+        from roger_experiments.train import train_draw
 
-        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
-            import time
-            t0 = time.monotonic()
-            recorder, _ = run_core(world, policy, COMPLETE_MAX if complete else args.cycles,
-                                   seed=seed, out=run_dir,
-                                   stop_when_complete=stable if complete else 0,
-                                   qtable_path=qtable if policy == "qlearning" else None,
-                                   learn=False, features=features)
-            assert recorder is not None
-            return recorder.close(time.monotonic() - t0)
-    else:
-        from roger_bringup.run import RunOptions, run_graph
+        runner = _sweep_runner(args, spec.mode == "graph", spec.timeout_s, version)
+        trainer = replace(runner, run=train_draw, domains=(), timeout_s=None)
+        result = run_sweep(spec, args.out, runner, trainer, version, progress=not args.quiet,
+                           in_flight=lambda: runner.in_flight + trainer.in_flight)
+    except KeyboardInterrupt:
+        print(f"roger sweep: stopped; the finished runs are in {args.out / 'cells'}, and "
+              "the same command again does the rest", file=sys.stderr)
+        return 130
+    finally:
+        stop_ray()
+    print(f"{result['done']} of {result['cells']} runs done, {result['failed']} failed")
+    for c in result["claims"]:
+        lo, hi = c["ci95"]
+        print(f"  {c['features']:>8} {c['budget']:>5} {c['verdict']:>13}: {c['claim']} "
+              f"(mean {c['mean_difference']:+.2f} [{lo:+.2f}, {hi:+.2f}], Wilcoxon p "
+              f"{c['wilcoxon_p']:.3g}, {c['pairs']} pairs)")
+    print(f"runs: {args.out / 'runs.csv'}; report: {args.out / 'report.md'}")
+    return 0 if result["failed"] == 0 else 1
 
-        def run(policy: str, seed: int, run_dir: Path, complete: bool) -> dict:
-            return run_graph(RunOptions(
-                world=args.world, out=run_dir, policy=policy,
-                cycles=None if complete else args.cycles, until_complete=complete,
-                stable_cycles=stable, max_cycles=COMPLETE_MAX, seed=seed,
-                qtable=qtable if policy == "qlearning" else None, learn=False,
-                features=features, progress=not args.quiet))
 
-    def run_one(policy: str, seed: int, run_dir: Path) -> dict:
-        return run(policy, seed, run_dir, False)
+def _sweep_runner(args: argparse.Namespace, graph: bool, timeout_s: float | None,
+                  version: str) -> RayRunner:
+    """The Ray runner of a sweep (keeps going past failed runs)."""
+    from roger_experiments.ray_runner import RayRunner
+    from roger_experiments.runners import run_in_process
 
-    def run_complete(policy: str, seed: int, run_dir: Path) -> dict:
-        return run(policy, seed, run_dir, True)
-    return compare(args.world, seeds, out, run_one, progress=not args.quiet,
-                   trained=trained, run_complete=run_complete if stable > 0 else None)
+    run: RunFn = run_in_process
+    if graph:
+        from roger_bringup.graph_run import run_spec_graph_quiet
+        run = run_spec_graph_quiet
+    domains = _domains() if graph else ()
+    return RayRunner(run, workers=args.workers if args.workers and args.workers > 0 else None,
+                     keep_going=True, timeout_s=timeout_s, domains=domains,
+                     expect_version=version)
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -268,12 +296,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     if count is None:
         count = 0 if args.worlds else RandomWorlds().count
     spec = RandomWorlds(count=count, seed0=args.world_seed0) if count > 0 else None
-    worlds, made = _training_worlds(args.worlds, spec, args.out / "worlds")
-    if not worlds:
+    if not args.worlds and spec is None:
         raise RogerError("roger train: no training world (give --worlds or --random-worlds)")
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    summary = _train(worlds, made, seeds, args.cycles, args.out, args.graph, args.quiet,
-                     args.features)
+    summary = _train(args.worlds, spec, seeds, args.cycles, args.out, args.graph, args.quiet,
+                     args.features, args.alpha_schedule)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("q", "worlds")},
                      indent=2))
     print(f"Q-table: {args.out / 'qtable.json'}; Figure 6: {args.out / 'td_errors.png'}; "
@@ -342,6 +369,7 @@ def main(argv: list[str] | None = None) -> None:
                                 "unmapped entry; at most 2000 cycles) for the report's "
                                 "'every object visited'; 0 skips those runs")
         p_cmp.add_argument("--quiet", action="store_true", help="no progress bars")
+        _add_workers_args(p_cmp, default=1)
         _add_features_arg(p_cmp)
         p_cmp.add_argument("--also-modes", nargs="*", default=(
             ["paper"] if name == "demo" else []), choices=("paper", "extended"),
@@ -350,6 +378,16 @@ def main(argv: list[str] | None = None) -> None:
                  "put Table 2 and the claims side by side in OUT/modes.md and report.md "
                  "(default: paper for demo, none for compare)")
         p_cmp.set_defaults(func=cmd_compare)
+    p_sweep = sub.add_parser("sweep", help="Table 2 over worlds x seeds x policies x feature "
+                             "modes x training draws, on Ray; resumable")
+    p_sweep.add_argument("spec", type=Path, metavar="SPEC.yaml",
+                         help="the sweep (docs/experiments.md, e.g. sweeps/claims.yaml)")
+    p_sweep.add_argument("--out", type=Path, required=True, metavar="DIR",
+                         help="output folder; a sweep run again into it does only the runs "
+                              "not finished there")
+    p_sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_workers_args(p_sweep, default=0, always_ray=True)
+    p_sweep.set_defaults(func=cmd_sweep)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
     p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")
     p_bench.add_argument("--quick", action="store_true", help="a few cycles only (smoke test)")
@@ -372,6 +410,10 @@ def main(argv: list[str] | None = None) -> None:
     p_train.add_argument("--seed0", type=int, default=0, help="first seed")
     p_train.add_argument("--cycles", type=int, default=204, help="control cycles per run")
     p_train.add_argument("--out", type=Path, default=Path("runs/train"), help="output folder")
+    p_train.add_argument("--alpha-schedule", choices=ALPHA_SCHEDULES, default="constant",
+                         help="step size of the Q-updates: constant (the paper's alpha 0.5) "
+                              "or visits (alpha / (1 + n(s,a) / alpha_k), settles; "
+                              "docs/attention.md)")
     p_train.add_argument("--graph", action="store_true",
                          help="train through the multi-process graph instead of in process")
     p_train.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -10,6 +10,7 @@ Node plumbing (QoS, parameters, ``spin_node``) is in ``ros_node``.
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -17,6 +18,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
+from roger_common import frames
 from roger_common.errors import MessageError
 from roger_common.geometry import eye_pose, quaternion_from_rotation
 from roger_common.types import (
@@ -41,9 +43,27 @@ from roger_interfaces.msg import HapticReading as HapticReadingMsg
 from roger_interfaces.msg import MemoryRequest as MemoryRequestMsg
 from roger_interfaces.msg import Roi as RoiMsg
 
-LEFT_FRAME = "roger_left_eye"
-RIGHT_FRAME = "roger_right_eye"
-ROBOT_FRAME = "roger_base"
+# Images, camera infos and ground-truth labels name the eyes' optical frames (REP 103);
+# positions (ROIs, goals, the spatial map) are in the base frame (roger_common.frames).
+LEFT_FRAME = frames.LEFT_OPTICAL_FRAME
+RIGHT_FRAME = frames.RIGHT_OPTICAL_FRAME
+ROBOT_FRAME = frames.BASE_FRAME
+
+# What a message from outside the graph may carry (docs/reliability.md, "Bad input"): a
+# msg_to_* conversion raises MessageError beyond these bounds, and the node drops it.
+#: Image sides, pixels: the simulator renders at most 1024 (SimConfig.image_size), and
+#: perception copes with any size down to one pixel (it finds no ROI there).
+IMAGE_SIDE_RANGE: tuple[int, int] = (1, 1024)
+#: Largest |coordinate| of a goal's target, metres: far beyond any depth a 1024 px retina
+#: can measure (about 140 m at one pixel of disparity), so no goal of the graph's own is
+#: refused; beyond it a target is nonsense that would only upset the controllers.
+TARGET_LIMIT_M: float = 1000.0
+#: Most ROIs one array may hold (perception finds a few dozen at most).
+MAX_ROIS: int = 1024
+#: Largest deviation of an eye pose's quaternion norm from 1.
+QUATERNION_TOLERANCE: float = 1e-3
+#: The fovea is the left eye's: same pose and optical axis, a narrower field.
+FOVEA_FRAME = LEFT_FRAME
 
 
 def seconds_to_time(t: float) -> Time:
@@ -107,13 +127,25 @@ def goal_to_msg(goal: Goal, stamp: float, map_revision: int = 0) -> ActionGoal:
 
 
 def msg_to_goal(msg: ActionGoal) -> Goal:
-    """An ActionGoal as a core Goal. Raises ValueError on an unknown action."""
-    action = Action(msg.action)
+    """An ActionGoal as a core Goal.
+
+    Raises:
+        MessageError: An unknown action or a map update, a target that is not finite or
+            farther than ``TARGET_LIMIT_M`` on an axis, an arm other than -1, 0 or 1.
+    """
+    try:
+        action = Action(msg.action)
+    except ValueError:
+        raise MessageError(f"goal {msg.goal_id}: unknown action {msg.action} "
+                           "(0 attention shift, 1 visual, 2 haptic improvement)") from None
     if action == Action.MAP_UPDATE:
-        raise ValueError("a map update is not a physical goal")
+        raise MessageError(f"goal {msg.goal_id}: a map update is not a physical goal")
     target = point_tuple(msg.target)
-    if not all(math.isfinite(v) for v in target):
-        raise ValueError(f"goal {msg.goal_id}: target {target} is not finite")
+    if not all(math.isfinite(v) and abs(v) <= TARGET_LIMIT_M for v in target):
+        raise MessageError(f"goal {msg.goal_id}: target {target} is not finite or beyond "
+                           f"{TARGET_LIMIT_M:g} m")
+    if msg.arm not in (-1, 0, 1):
+        raise MessageError(f"goal {msg.goal_id}: arm {msg.arm} (-1 either, 0 left, 1 right)")
     return Goal(goal_id=int(msg.goal_id), action=action, target=target, arm=int(msg.arm))
 
 
@@ -127,7 +159,16 @@ def image_msg(img: np.ndarray, stamp: float, frame_id: str) -> Image:
 
 
 def image_to_array(msg: Image) -> np.ndarray:
-    """A retina image (32FC1 in [0, 1], or mono8) as float32 (H, W). Raises MessageError."""
+    """A retina image (32FC1 in [0, 1], or mono8) as float32 (H, W).
+
+    Raises:
+        MessageError: Another encoding, a side outside ``IMAGE_SIDE_RANGE``, a step or data
+            length that does not fit the size, values that are not finite or outside [0, 1].
+    """
+    lo, hi = IMAGE_SIDE_RANGE
+    if not (lo <= msg.width <= hi and lo <= msg.height <= hi):
+        raise MessageError(f"image {msg.width}x{msg.height}: each side must be in "
+                           f"[{lo}, {hi}] px")
     if msg.encoding == "32FC1":
         if msg.step != 4 * msg.width or len(msg.data) != msg.step * msg.height:
             raise MessageError(f"32FC1 image {msg.width}x{msg.height}: step {msg.step} and "
@@ -143,6 +184,8 @@ def image_to_array(msg: Image) -> np.ndarray:
         raise MessageError(f"image encoding {msg.encoding!r} not supported (use 32FC1 or mono8)")
     if not np.all(np.isfinite(img)):
         raise MessageError("image holds NaN or infinite values")
+    if img.min() < 0.0 or img.max() > 1.0:
+        raise MessageError(f"image values in [{img.min():g}, {img.max():g}], not [0, 1]")
     return img
 
 
@@ -163,9 +206,12 @@ def camera_info_msg(camera: CameraModel, stamp: float, frame_id: str,
 def camera_from_info(msg: CameraInfo) -> CameraModel:
     """The pinhole model of a CameraInfo (fx from K). Raises MessageError when unusable."""
     focal = float(msg.k[0])
-    if msg.width <= 0 or msg.height <= 0 or not math.isfinite(focal) or focal <= 0:
+    lo, hi = IMAGE_SIDE_RANGE
+    if (not (lo <= msg.width <= hi and lo <= msg.height <= hi) or not math.isfinite(focal)
+            or focal <= 0 or focal > 1e6):
         raise MessageError(f"camera info {msg.width}x{msg.height} with focal length {focal} "
-                           "is unusable (need a positive size and focal length)")
+                           f"is unusable (need sides in [{lo}, {hi}] px and a focal length "
+                           "in (0, 1e6] px)")
     return CameraModel(width=int(msg.width), height=int(msg.height), focal_px=focal)
 
 
@@ -175,12 +221,17 @@ def stereo_geometry_msg(frame: StereoFrame, map_revision: int = 0) -> StereoGeom
         header=header(frame.stamp), goal_id=frame.goal_id,
         left_eye=eye_pose_msg(frame.left_pose), right_eye=eye_pose_msg(frame.right_pose),
         exposures=frame.exposures, map_revision=int(map_revision),
-        haptic=frame.haptic is not None)
+        haptic=frame.haptic is not None, fovea=frame.fovea is not None)
 
 
 def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:
     """Left and right eye poses of a StereoGeometry message. Raises MessageError on NaN."""
     def one(p: Pose) -> EyePose:
+        o = p.orientation
+        norm = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
+        if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:  # NaN included
+            raise MessageError(f"stereo geometry of goal {msg.goal_id}: eye orientation is "
+                               f"not a unit quaternion (norm {norm:g})")
         pose = msg_to_eye_pose(p)
         if not (np.all(np.isfinite(pose.position)) and np.all(np.isfinite(pose.rotation))):
             raise MessageError(f"stereo geometry of goal {msg.goal_id}: eye pose not finite")
@@ -266,6 +317,12 @@ def msg_to_roi(msg: RoiMsg, mode: FeatureMode | str = FeatureMode.PAPER) -> Roi:
     pos = point_tuple(msg.position)
     if not all(math.isfinite(v) for v in pos):
         raise MessageError(f"ROI {msg.id}: position {pos} is not finite")
+    scalars = {"activation": msg.activation, "retinal_size": msg.retinal_size,
+               "mean_intensity": msg.mean_intensity, "motion": msg.motion,
+               "tactile": msg.tactile, "size_m": msg.size_m}
+    bad = [name for name, v in scalars.items() if not math.isfinite(v)]
+    if bad:
+        raise MessageError(f"ROI {msg.id}: {', '.join(bad)} not finite")
     return Roi(roi_id=int(msg.id), bbox=(msg.x0, msg.y0, msg.x1, msg.y1), position=pos,
                features=features, known=known, activation=float(msg.activation),
                retinal_size=float(msg.retinal_size), mean_intensity=float(msg.mean_intensity),
@@ -289,9 +346,13 @@ def roi_array_mode(msg: RoiArray) -> FeatureMode:
 
 def msg_to_rois(msg: RoiArray) -> list[Roi]:
     """A RoiArray as core Rois (raises MessageError on the first malformed ROI)."""
+    if len(msg.rois) > MAX_ROIS:
+        raise MessageError(f"ROI array of goal {msg.goal_id}: {len(msg.rois)} ROIs, at most "
+                           f"{MAX_ROIS}")
     ids = [int(r.id) for r in msg.rois]
     if len(set(ids)) != len(ids):
-        raise MessageError(f"ROI array of goal {msg.goal_id}: ROI ids repeat ({ids})")
+        repeated = sorted(i for i, n in Counter(ids).items() if n > 1)[:8]
+        raise MessageError(f"ROI array of goal {msg.goal_id}: ROI ids repeat ({repeated})")
     mode = roi_array_mode(msg)
     return [msg_to_roi(r, mode) for r in msg.rois]
 
@@ -346,6 +407,18 @@ def result_to_msg(request_id: int, op: MemoryOp, result: MatchResult, memory_siz
 
 
 def msg_to_result(msg: MemoryResult) -> MatchResult:
-    """A reply message as a core MatchResult."""
-    return MatchResult(outcome=MatchOutcome(msg.outcome), address=int(msg.address),
+    """A reply message as a core MatchResult.
+
+    Raises:
+        MessageError: An unknown op or outcome, a confidence that is not finite.
+    """
+    try:
+        MemoryOp(msg.op)
+        outcome = MatchOutcome(msg.outcome)
+    except ValueError:
+        raise MessageError(f"memory result {msg.request_id}: unknown op {msg.op} or outcome "
+                           f"{msg.outcome}") from None
+    if not math.isfinite(msg.confidence):
+        raise MessageError(f"memory result {msg.request_id}: confidence {msg.confidence}")
+    return MatchResult(outcome=outcome, address=int(msg.address),
                        confidence=float(msg.confidence))

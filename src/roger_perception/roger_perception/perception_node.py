@@ -19,6 +19,7 @@ from roger_common.ros_node import (
     IMAGES,
     LATCHED,
     RELIABLE,
+    BadInput,
     declare_config,
     spin_node,
 )
@@ -57,12 +58,15 @@ class PerceptionNode(Node):
         self._map_revision = 0
         #: Complete pairs waiting for their haptic reading or map: (parts, since).
         self._ready: list[tuple[dict[str, Any], float]] = []
+        self.bad_input = BadInput(self)
         self.pub_rois = self.create_publisher(RoiArray, "/roger/rois", RELIABLE)
         for kind, cls, topic in (("left", Image, "/roger/left/image_raw"),
                                  ("right", Image, "/roger/right/image_raw"),
                                  ("geometry", StereoGeometry, "/roger/stereo_geometry"),
-                                 ("info", CameraInfo, "/roger/left/camera_info")):
-            self.create_subscription(cls, topic, self._part_of(kind), IMAGES)
+                                 ("info", CameraInfo, "/roger/left/camera_info"),
+                                 ("fovea", Image, "/roger/fovea/image_raw"),
+                                 ("fovea_info", CameraInfo, "/roger/fovea/camera_info")):
+            self.create_subscription(cls, topic, self._part_of(kind, topic), IMAGES)
         self.create_subscription(HapticReadingMsg, "/roger/haptic", self.on_haptic, RELIABLE)
         self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
         self.create_timer(0.5, self._flush_stale,
@@ -73,7 +77,7 @@ class PerceptionNode(Node):
         try:
             reading: HapticReading | None = common.msg_to_haptic(msg)
         except MessageError as exc:
-            self.get_logger().error(f"haptic reading dropped: {exc}")
+            self.bad_input.drop("/roger/haptic", exc)
             reading = None  # the pair of this goal need not wait for it any longer
         self._haptic[int(msg.goal_id)] = reading
         while len(self._haptic) > MAX_PENDING:
@@ -86,14 +90,25 @@ class PerceptionNode(Node):
         self._map_revision = max(self._map_revision, int(msg.revision))
         self._drain()
 
-    def _part_of(self, kind: str) -> Callable[[Any], None]:
-        return lambda msg: self._part(msg.header.stamp, kind, msg)
+    def _part_of(self, kind: str, topic: str) -> Callable[[Any], None]:
+        check = _CHECKS[kind]
+
+        def on_part(msg: Any) -> None:
+            # Each part is checked on its own as it comes: an unusable one never takes the
+            # place of a usable part of the same stamp, nor of a partial pair (MAX_PENDING).
+            try:
+                check(msg)
+            except MessageError as exc:
+                self.bad_input.drop(topic, exc)
+                return
+            self._part(msg.header.stamp, kind, msg)
+        return on_part
 
     def _part(self, stamp: Any, kind: str, msg: Any) -> None:
         key = (stamp.sec, stamp.nanosec)
         parts = self._pending.setdefault(key, {})
         parts[kind] = msg
-        if len(parts) == 4:
+        if _complete(parts):
             del self._pending[key]
             self._ready.append((parts, time.monotonic()))
             self._drain()
@@ -135,17 +150,45 @@ class PerceptionNode(Node):
                 raise MessageError(f"stereo pair sizes {left.shape} / {right.shape} do not "
                                    f"match the camera ({camera.height}, {camera.width})")
         except MessageError as exc:
-            self.get_logger().error(f"stereo pair of goal {geometry.goal_id} dropped: {exc}; "
-                                    "the attention node will ask for it again")
+            self.bad_input.drop("/roger/left/image_raw", f"stereo pair of goal "
+                                f"{geometry.goal_id}: {exc}; the attention node will ask for "
+                                "it again")
             return
         stamp = common.time_to_seconds(geometry.header.stamp)
+        fovea, fovea_camera = None, None
+        if geometry.fovea:
+            try:
+                fovea_camera = common.camera_from_info(parts["fovea_info"])
+                fovea = common.image_to_array(parts["fovea"])
+                if fovea.shape != (fovea_camera.height, fovea_camera.width):
+                    raise MessageError(f"foveal image size {fovea.shape} does not match its "
+                                       f"camera ({fovea_camera.height}, {fovea_camera.width})")
+            except MessageError as exc:
+                self.get_logger().warn(f"fovea of goal {geometry.goal_id} dropped: {exc}")
+                fovea, fovea_camera = None, None
         frame = StereoFrame(stamp=stamp, goal_id=int(geometry.goal_id), left=left, right=right,
                             camera=camera, left_pose=left_pose, right_pose=right_pose,
                             exposures=int(geometry.exposures),
-                            haptic=self._haptic.pop(int(geometry.goal_id), None))
+                            haptic=self._haptic.pop(int(geometry.goal_id), None),
+                            fovea=fovea, fovea_camera=fovea_camera)
         rois = self.perception.process(frame, self._mapped)
         self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id,
                                                  self.perception.config.features))
+
+
+def _complete(parts: dict[str, Any]) -> bool:
+    """A stereo pair has its two images, camera info and geometry, and, when the geometry
+    says a fovea belongs to it, the foveal image and its camera info."""
+    if not {"left", "right", "geometry", "info"} <= parts.keys():
+        return False
+    return not parts["geometry"].fovea or {"fovea", "fovea_info"} <= parts.keys()
+
+
+#: What each part of a stereo pair must pass on its own (roger_common.conversions).
+_CHECKS: dict[str, Callable[[Any], object]] = {
+    "left": common.image_to_array, "right": common.image_to_array,
+    "info": common.camera_from_info, "geometry": common.poses_from_geometry,
+    "fovea": common.image_to_array, "fovea_info": common.camera_from_info}
 
 
 def main(args: list[str] | None = None) -> None:

@@ -20,17 +20,20 @@ from typing import Any
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 from roger_common import conversions as common
 from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.configdoc import take_live_fields
-from roger_common.errors import RogerError
+from roger_common.errors import MessageError, RogerError
 from roger_common.ros_node import (
     IMAGES,
     LABELS,
     LATCHED,
     RELIABLE,
     REPORTS,
+    BadInput,
     declare_config,
     spin_node,
 )
@@ -49,6 +52,8 @@ from roger_interfaces.srv import EditWorld
 from roger_sim import conversions as conv
 from roger_sim.config import SimConfig, SimNodeConfig
 from roger_sim.simulator import Simulator
+from roger_sim.tf_tree import joint_transforms, static_transforms
+from roger_sim.urdf import describe_model, to_urdf
 from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
 
 #: Eye separation (metres), for the right CameraInfo's projection matrix.
@@ -77,12 +82,16 @@ class SimNode(Node):
         self._map_revision = 0
         self._last_haptic_msg: HapticReading | None = None
         self._wall_start = time.monotonic()
+        self.bad_input = BadInput(self)
 
         self.pub_clock = self.create_publisher(Clock, "/clock", RELIABLE)
         self.pub_left = self.create_publisher(Image, "/roger/left/image_raw", IMAGES)
         self.pub_right = self.create_publisher(Image, "/roger/right/image_raw", IMAGES)
         self.pub_left_info = self.create_publisher(CameraInfo, "/roger/left/camera_info", IMAGES)
         self.pub_right_info = self.create_publisher(CameraInfo, "/roger/right/camera_info",
+                                                    IMAGES)
+        self.pub_fovea = self.create_publisher(Image, "/roger/fovea/image_raw", IMAGES)
+        self.pub_fovea_info = self.create_publisher(CameraInfo, "/roger/fovea/camera_info",
                                                     IMAGES)
         self.pub_geometry = self.create_publisher(StereoGeometry, "/roger/stereo_geometry",
                                                   IMAGES)
@@ -95,30 +104,44 @@ class SimNode(Node):
         self.pub_truth = self.create_publisher(GroundTruth, "/roger/ground_truth", LATCHED)
         self.pub_labels = self.create_publisher(GroundTruthLabels, "/roger/ground_truth/labels",
                                                 LABELS)
+        # The robot model and its TF tree (roger_sim.urdf, roger_sim.tf_tree).
+        self.description = describe_model(self.sim.robot)
+        self.pub_robot = self.create_publisher(String, "/robot_description", LATCHED)
+        self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", LATCHED)
+        self.pub_tf = self.create_publisher(TFMessage, "/tf", RELIABLE)
         self.create_subscription(ActionGoal, "/roger/goal", self.on_goal, RELIABLE)
         self.create_subscription(WorldEdit, "/roger/world_edit", self.on_world_edit, RELIABLE)
         self.create_service(EditWorld, "/roger/edit_world", self.on_edit_world)
         self._publish_clock()
         self._publish_ground_truth()
+        self.pub_robot.publish(conv.robot_description_msg(to_urdf(self.description)))
+        self.pub_tf_static.publish(conv.tf_msg(static_transforms(self.description),
+                                               self.sim.sim_time))
+        self._publish_tf(*self.sim.joint_state()[:2], self.sim.sim_time)
         self.get_logger().info(
             f"world {world_path}: {len(self.world.objects)} objects; waiting for goals")
 
     # -- goals ---------------------------------------------------------------------------
     def on_goal(self, msg: ActionGoal) -> None:
         """Execute a goal (or re-send the frame of a goal already executed)."""
+        try:
+            goal = common.msg_to_goal(msg)
+        except MessageError as exc:
+            self.bad_input.drop("/roger/goal", exc)
+            return
         # A goal id seen again is a retry after a lost reply: re-send, do not re-execute.
         # Goal 0 is the initial look, which may be asked for repeatedly.
-        if msg.goal_id > 0 and msg.goal_id == self._last_goal_id and self._last_frame is not None:
-            self.get_logger().warn(f"goal {msg.goal_id} received again: re-sending its frame")
+        if goal.goal_id > 0 and goal.goal_id == self._last_goal_id \
+                and self._last_frame is not None:
+            self.get_logger().warn(f"goal {goal.goal_id} received again: re-sending its frame")
             if self._last_haptic_msg is not None:
                 self.pub_haptic.publish(self._last_haptic_msg)
             self._publish_frame(self._last_frame)
             return
         try:
-            goal = common.msg_to_goal(msg)
             report, frame = self.sim.run_goal(goal)
         except (RogerError, ValueError) as exc:
-            self.get_logger().error(f"goal {msg.goal_id} refused: {exc}")
+            self.get_logger().error(f"goal {goal.goal_id} refused: {exc}")
             return
         self._save_state()
         stamp = self.sim.sim_time
@@ -137,6 +160,7 @@ class SimNode(Node):
         self.pub_convergence.publish(conv.convergence_msg(report, goal.action, stamp))
         names, pos, vel, eff = self.sim.joint_state()
         self.pub_joints.publish(conv.joint_state_msg(names, pos, vel, eff, stamp))
+        self._publish_tf(names, pos, stamp)
         if self._last_haptic_msg is not None:
             self._publish_ground_truth()
 
@@ -161,6 +185,10 @@ class SimNode(Node):
                                                         BASELINE, right=False))
         self.pub_right_info.publish(common.camera_info_msg(frame.camera, stamp, common.RIGHT_FRAME,
                                                          BASELINE, right=True))
+        if frame.fovea is not None and frame.fovea_camera is not None:
+            self.pub_fovea_info.publish(common.camera_info_msg(
+                frame.fovea_camera, stamp, common.FOVEA_FRAME, 0.0, right=False))
+            self.pub_fovea.publish(common.image_msg(frame.fovea, stamp, common.FOVEA_FRAME))
         self.pub_geometry.publish(common.stereo_geometry_msg(frame, self._map_revision))
         self.pub_left.publish(common.image_msg(frame.left, stamp, common.LEFT_FRAME))
         self.pub_right.publish(common.image_msg(frame.right, stamp, common.RIGHT_FRAME))
@@ -169,6 +197,11 @@ class SimNode(Node):
         labels = conv.ground_truth_labels_msg(frame)
         if labels is not None:
             self.pub_labels.publish(labels)
+
+    def _publish_tf(self, names: list[str], positions: list[float], stamp: float) -> None:
+        """/tf of the movable joints, from the joint state just read."""
+        self.pub_tf.publish(conv.tf_msg(joint_transforms(self.description, names, positions),
+                                        stamp))
 
     def _publish_clock(self) -> None:
         msg = Clock()
@@ -227,7 +260,7 @@ class SimNode(Node):
         try:
             self.get_logger().info(self.apply_edit(msg))
         except (RogerError, KeyError, ValueError) as exc:
-            self.get_logger().error(f"world edit refused: {exc}")
+            self.bad_input.drop("/roger/world_edit", _reason(exc))
 
     def on_edit_world(self, request: EditWorld.Request,
                       response: EditWorld.Response) -> EditWorld.Response:
@@ -236,7 +269,7 @@ class SimNode(Node):
             response.message = self.apply_edit(request.edit)
             response.ok = True
         except (RogerError, KeyError, ValueError) as exc:
-            response.ok, response.message = False, str(exc)
+            response.ok, response.message = False, _reason(exc)
         return response
 
     def destroy_node(self) -> None:
@@ -244,6 +277,12 @@ class SimNode(Node):
         sync_file(self.state_path)
         self.sim.close()
         super().destroy_node()
+
+
+def _reason(exc: Exception) -> str:
+    """Why an edit was refused, one line (a KeyError's str() would be its message's repr)."""
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return " ".join(text.splitlines())
 
 
 def main(args: list[str] | None = None) -> None:
