@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 
 from roger_common.types import CameraModel, EyePose
+from roger_perception.haptic import nearest_within
 
 #: O's departure (in units of the ellipse's vertical half-axis) is divided by this: boxes
 #: read about 0.1 (0.2 as O), cylinders 0.02-0.03, prisms up to 0.6 (clipped at 1).
@@ -257,8 +258,4 @@ class FoveaLooks:
         self._values.clear()
 
     def _nearest(self, pos: np.ndarray) -> int | None:
-        if not self._positions:
-            return None
-        d = np.linalg.norm(np.stack(self._positions)[:, :2] - pos[:2], axis=1)
-        i = int(np.argmin(d))
-        return i if d[i] <= self.radius else None
+        return nearest_within(self._positions, pos, self.radius)

@@ -85,11 +85,17 @@ class HapticMemory:
         self._touch.clear()
 
     def _nearest(self, pos: np.ndarray) -> int | None:
-        if not self._positions:
-            return None
-        d = np.linalg.norm(np.stack(self._positions)[:, :2] - pos[:2], axis=1)
-        i = int(np.argmin(d))
-        return i if d[i] <= self.radius else None
+        return nearest_within(self._positions, pos, self.radius)
+
+
+def nearest_within(positions: Sequence[np.ndarray], pos: np.ndarray, radius: float
+                   ) -> int | None:
+    """Index of the position nearest ``pos`` on the ground plane, if within ``radius``."""
+    if not positions:
+        return None
+    d = np.linalg.norm(np.stack(positions)[:, :2] - pos[:2], axis=1)
+    i = int(np.argmin(d))
+    return i if d[i] <= radius else None
 
 
 def touches(reading: HapticReading | None, position: Sequence[float], radius: float) -> bool:
