@@ -556,9 +556,12 @@ def write_outputs(out: Path, results: list[RunResult], world: str,
     plots.fig4(results, out / "fig4.png")
     plots.fig5(results, out / "fig5.png")
     if trained is not None and (path := trained.td_errors()) is not None:
-        alpha = float((trained.training or {}).get("alpha", 0.5))
+        training = trained.training or {}
+        alpha = float(training.get("alpha", 0.5))
+        alpha_k = (float(training.get("alpha_k", 20.0))
+                   if training.get("alpha_schedule") == "visits" else None)
         plot_training(read_td_errors(path), out / "fig6.png", alpha,
-                      f"the training of {trained.qtable}")
+                      f"the training of {trained.qtable}", alpha_k)
     else:
         plots.fig6(results, out / "fig6.png")
     return {"table2": table, "claims": claims, "completion": completion}

@@ -119,27 +119,35 @@ class TrainingLog:
     actions: list[str]
 
     def q_history(self, alpha: float, pairs: tuple[tuple[str, str], ...] = Q_SHOWN,
-                  initial_q: float = 0.0) -> dict[str, np.ndarray]:
+                  initial_q: float = 0.0, alpha_k: float | None = None
+                  ) -> dict[str, np.ndarray]:
         """Q(s, a) after each update, rebuilt from the TD errors (Q += alpha td, section
-        2): exact for a training that started from a table of ``initial_q``."""
+        2; with ``alpha_k``, the "visits" schedule's alpha / (1 + n(s, a) / alpha_k)):
+        exact for a training that started from a fresh table of ``initial_q``."""
         out = {f"Q({s}, {a.replace('_improvement', '').replace('attention_', '')})":
                np.full(self.td.size, initial_q) for s, a in pairs}
         keys = dict(zip(pairs, out, strict=True))
         value = dict.fromkeys(pairs, initial_q)
+        visits: dict[tuple[str, str], int] = {}
         for k, (s, a, td) in enumerate(zip(self.states, self.actions, self.td, strict=True)):
+            n = visits.get((s, a), 0)
+            visits[(s, a)] = n + 1
             if (s, a) in value:
-                value[(s, a)] += alpha * float(td)
+                step = alpha if alpha_k is None else alpha / (1.0 + n / alpha_k)
+                value[(s, a)] += step * float(td)
             for pair, label in keys.items():
                 out[label][k] = value[pair]
         return out
 
 
-    def greedy_changes(self, alpha: float, since: float = 0.5) -> dict[str, int]:
+    def greedy_changes(self, alpha: float, since: float = 0.5,
+                       alpha_k: float | None = None) -> dict[str, int]:
         """Per state, how often its greedy action (ties: the set of tied actions) changed
-        after the fraction ``since`` of the updates: 0 once the values have settled."""
+        after the fraction ``since`` of the updates: 0 once the values have settled
+        (``alpha_k``: as for ``q_history``)."""
         pairs = tuple((s.bits, ACTION_NAMES[int(a)]) for s in STATES
                       for a in possible_actions(s))
-        history = self.q_history(alpha, pairs)
+        history = self.q_history(alpha, pairs, alpha_k=alpha_k)
         labels = dict(zip(pairs, history, strict=True))
         start = int(since * self.td.size)
         out: dict[str, int] = {}
@@ -234,8 +242,10 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
     atomic_write_bytes(out / "td_errors.csv", ("\n".join(lines) + "\n").encode())
     log = read_td_errors(out / "td_errors.csv")
     table = QTable.load(qtable)
+    alpha_k = table.config.alpha_k if table.config.alpha_schedule == "visits" else None
     plot_training(log, out / "td_errors.png", table.config.alpha,
-                  f"{total} training runs on {len(worlds)} worlds, {len(seeds)} seeds each")
+                  f"{total} training runs on {len(worlds)} worlds, {len(seeds)} seeds each"
+                  f"; step size {table.config.alpha_schedule}", alpha_k)
     td = log.td
     greedy = {s.bits: [a.name.lower() for a in table.greedy_actions(s, possible_actions(s))]
               for s in STATES}
@@ -245,9 +255,10 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
                     "fingerprint": world_fingerprint(load_world(w))} for w in worlds],
         "made_by": describe or {}, "qtable": str(qtable), "run_metrics": runs,
         "alpha": table.config.alpha, "gamma": table.config.gamma,
-        "epsilon": table.config.epsilon,
+        "epsilon": table.config.epsilon, "alpha_schedule": table.config.alpha_schedule,
+        "alpha_k": table.config.alpha_k,
         **convergence(td),
-        "greedy_changes_second_half": log.greedy_changes(table.config.alpha)
+        "greedy_changes_second_half": log.greedy_changes(table.config.alpha, alpha_k=alpha_k)
         if all(log.states) else None,
         "q": {s.bits: {a.name.lower(): round(table.value(s, a), 4) for a in possible_actions(s)}
               for s in STATES},
@@ -256,11 +267,14 @@ def train(worlds: list[Path], seeds: list[int], out: Path,
     return summary
 
 
-def plot_training(log: TrainingLog, path: Path, alpha: float, subtitle: str) -> None:
-    """Figure 6 of a training: |TD error| per trial, its moving average, the Q-values."""
+def plot_training(log: TrainingLog, path: Path, alpha: float, subtitle: str,
+                  alpha_k: float | None = None) -> None:
+    """Figure 6 of a training: |TD error| per trial, its moving average, the Q-values
+    (``alpha_k``: the "visits" step size, as for ``TrainingLog.q_history``)."""
     plots.td_convergence(log.td, path, log.run_starts, MOVING_AVERAGE, subtitle,
                          actions=log.actions,
-                         q_values=log.q_history(alpha) if all(log.states) else None)
+                         q_values=log.q_history(alpha, alpha_k=alpha_k)
+                         if all(log.states) else None)
 
 
 def describe_random(spec: RandomWorlds) -> dict[str, Any]:
