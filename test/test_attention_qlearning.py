@@ -262,3 +262,14 @@ def test_a_table_keeps_its_step_size_schedule_when_loaded_with_a_run_config(
     assert table.config.alpha_schedule == "visits" and table.config.epsilon == 0.2
     fresh_table(tmp_path, "constant")
     assert not (tmp_path / "qtable.json").exists()  # the paper's: a fresh default table
+
+
+def test_figure_6_rebuilds_q_with_the_tables_own_step_sizes() -> None:
+    """train.q_history replays the TD errors with the schedule the table learnt with."""
+    from roger_experiments.train import TrainingLog
+    for schedule, k in (("constant", None), ("visits", 3.0)):
+        t = QTable(QLearningConfig(alpha_schedule=schedule, alpha_k=k or 20.0, gamma=0.0))
+        tds = [t.update(S010, M, r, S011, terminated=True) for r in (1.0, 0.0, 2.0, 1.0, 1.0)]
+        log = TrainingLog(np.array(tds), [0], ["010"] * 5, ["map_update"] * 5)
+        history = log.q_history(0.5, (("010", "map_update"),), alpha_k=k)
+        assert list(history.values())[0][-1] == pytest.approx(t.value(S010, M)), schedule
