@@ -194,12 +194,20 @@ def _listening(pids: set[int]) -> set[tuple[str, str]]:
 
 
 def _ray_pids(marker: str) -> set[int]:
+    """Processes of one Ray instance: its temp folder in their command line, or (Ray's
+    agents retitle themselves "ray::DashboardAgent" and outlive their raylet for a minute)
+    a file open under it."""
     pids = set()
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
             try:
                 if marker in (d / "cmdline").read_bytes().decode(errors="replace"):
                     pids.add(int(d.name))
+                    continue
+                for fd in (d / "fd").iterdir():
+                    if os.readlink(fd).startswith(marker):
+                        pids.add(int(d.name))
+                        break
             except OSError:
                 continue
     return pids
