@@ -46,19 +46,21 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02497, 0.03836, 0.05035, 0.00498, 0.00576, 0.00518,
-    0.02582, 0.02214, 0.02068, 0.00420, 0.01017, 0.02931,
-    0.01691, 0.00150, 0.01435, 0.00686)
+    0.02496, 0.03827, 0.05018, 0.00499, 0.00576, 0.00514,
+    0.02607, 0.02240, 0.02096, 0.00421, 0.01013, 0.02935,
+    0.01684, 0.00122, 0.00997, 0.01691)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.640, 1.234, 0.983, 0.593, 0.413, 0.513,
-    0.615, 0.531, 0.226, 1.896, 3.244, 0.553,
-    1.862, 0.714, 0.542, 0.441)
-EXTENDED_IDENTIFY_DISTANCE: float = 1.85
+    1.617, 1.220, 0.973, 0.582, 0.408, 0.513,
+    0.596, 0.512, 0.209, 1.867, 3.203, 0.543,
+    1.840, 0.755, 0.633, 0.528)
+EXTENDED_IDENTIFY_DISTANCE: float = 1.86
+#: TK's and TC's vetoes lie beyond their range [0, 1]: they never veto (docs/memory.md,
+#: "What one feature cannot do").
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1494, 0.2792, 0.3670, 0.0398, 0.0501, 0.0409,
-    0.2414, 0.2050, 0.2133, 0.0306, 0.0371, 0.2252,
-    0.5696, 0.0102, 0.8294, 0.4604)
-EXTENDED_NOISE_DOF: float = 7.74
+    0.1531, 0.2870, 0.3667, 0.0399, 0.0503, 0.0406,
+    0.2438, 0.2074, 0.2162, 0.0307, 0.0369, 0.2255,
+    0.5673, 0.0120, 1.0551, 1.6075)
+EXTENDED_NOISE_DOF: float = 7.62
 #: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
 #: a design choice, not a measurement (docs/memory.md, "A robust distance").
 EXTENDED_Z_CAP: float = 3.0

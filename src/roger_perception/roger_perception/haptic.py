@@ -7,8 +7,9 @@ size plus ``radius`` (the hand may touch a large object anywhere on its top, far
 centre of its visible surface). The reading is stored at that ROI's position, so that
 later ROIs of the object, whose positions jitter by a few centimetres, find it within
 ``radius``; with no ROI near, at the contact point. A new reading within ``radius`` of an
-old one replaces it (the object was re-weighed). Distances are taken on the ground plane
-(x, y): objects stand on the ground, never on one another.
+old one replaces its weight (the object was re-weighed) and adds its touches to the
+object's last ``TOUCH_READINGS`` (``shape.touch_shape`` pools them). Distances are taken
+on the ground plane (x, y): objects stand on the ground, never on one another.
 """
 
 from __future__ import annotations
@@ -18,8 +19,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from roger_common.types import HapticReading
-from roger_perception.shape import tactile_shape
+from roger_common.types import HapticReading, TactileContact
+from roger_perception.shape import touch_shape
+
+#: Readings whose touches are pooled per object (the last ones), as the fovea keeps the
+#: last 5 outlines of an object (``fovea.FoveaLooks``).
+TOUCH_READINGS: int = 5
 
 
 class HapticMemory:
@@ -33,7 +38,7 @@ class HapticMemory:
         self.radius = float(radius)
         self._positions: list[np.ndarray] = []
         self._weights: list[float] = []
-        self._touch: list[tuple[float, ...] | None] = []
+        self._touch: list[list[tuple[TactileContact, ...]]] = []
 
     def __len__(self) -> int:
         return len(self._weights)
@@ -55,16 +60,16 @@ class HapticMemory:
             inside = np.flatnonzero(d <= reach)
             if inside.size:
                 pos = rois[inside[np.argmin(d[inside])]]
-        touch = tactile_shape(reading.contacts)
+        touches = [tuple(reading.contacts)] if reading.contacts else []
         i = self._nearest(pos)
         if i is not None:
             self._positions[i] = pos
             self._weights[i] = float(reading.weight)
-            self._touch[i] = touch
+            self._touch[i] = (self._touch[i] + touches)[-TOUCH_READINGS:]
         else:
             self._positions.append(pos)
             self._weights.append(float(reading.weight))
-            self._touch.append(touch)
+            self._touch.append(touches)
         return True
 
     def weight_near(self, position: Sequence[float]) -> float | None:
@@ -73,10 +78,11 @@ class HapticMemory:
         return None if i is None else self._weights[i]
 
     def touch_near(self, position: Sequence[float]) -> tuple[float, ...] | None:
-        """TH, TK, TC (``shape.tactile_shape``) of the nearest reading within the radius;
-        None without one, or when that reading's touches were not reported."""
+        """TH, TK, TC (``shape.touch_shape``) of the touches of the last readings at the
+        nearest position within the radius; None without one, or when none of its
+        readings reported touches."""
         i = self._nearest(np.asarray(position, float))
-        return None if i is None else self._touch[i]
+        return None if i is None else touch_shape(self._touch[i])
 
     def clear(self) -> None:
         """Forget every reading."""

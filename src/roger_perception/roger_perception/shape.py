@@ -36,11 +36,23 @@ normals of the first touch and its probe touches, ``HapticReading.contacts``):
   Times ``TK_SCALE_M``.
 * ``TC``: the crease the touches cross: over the pairs, the largest angle between the
   normals that the curvature TK does not explain (``angle - curvature * distance``), over
-  pi. Of three probe directions 120 degrees apart one always crosses a prism's ridge,
-  whatever the yaw: a flank's normal stands 60 degrees from the ridge's (which the hand's
-  flat face reports vertical) or 120 from the other flank's (0.27-0.35 measured on worlds
-  2001-2002 of both recipes). A sphere's normals turn as its curvature says (0 but
-  noise), a flat top's not at all.
+  ``CREASE_FULL_RAD`` (45 degrees), clipped at 1. Of three probe directions 120 degrees
+  apart one always crosses a prism's ridge, whatever the yaw: a flank's normal stands 60
+  degrees from the ridge's (which the hand's flat face reports vertical) or 120 from the
+  other flank's, depending on where the first touch landed. Over pi, as first built, that
+  read 0.19-0.69 for copies of one prism (test/data/memory_queries_extended.csv.gz of
+  2026-11-25 and the rows recorded on worlds 6001-6002): one object's crease split into
+  two modes by the landing point. Every edge of a polyhedron in these worlds turns the
+  normal by 60 degrees or more (a box's 90, a prism's 60 or 120), so a crease of 45
+  degrees or more is "an edge crossed", whichever; a sphere's normals turn as its
+  curvature says (0 but noise), a flat top's not at all.
+
+Touches accumulate: ``touch_shape`` pools the last readings of one object
+(``haptic.HapticMemory`` keeps them by position, as it keeps the weight): TK is the
+least-squares curvature over the smooth pairs of all of them (pairs within one reading:
+the object may have moved between two), TH and TC the median of the readings'. A second
+haptic improvement on an object therefore adds its touches to the first's instead of
+replacing them.
 
   Both replace ``TS`` (the steepest slope touched, 487cef8-bfe3283): on a sphere that was
   asin(offset / radius) where the probes landed, so copies of one sphere read 0.15-0.24
@@ -68,6 +80,9 @@ MIN_PAIR_M: float = 0.01
 #: Two touches whose normals are this far apart (radians) lie across an edge or a ridge,
 #: not on one smooth surface: a 10 cm sphere's touches 3 cm apart turn by 0.6.
 CREASE_RAD: float = 0.9
+#: A crease of this many radians (or more) reads TC = 1: every edge of a box (90 degrees)
+#: or a prism (60 or 120) is a full crease, wherever the first touch landed.
+CREASE_FULL_RAD: float = math.pi / 4
 #: TK is the curvature (1/m) times this: a sphere of 10-18 cm reads 0.6-0.33, and a radius
 #: under 3 cm saturates at 1.
 TK_SCALE_M: float = 0.03
@@ -140,23 +155,46 @@ def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float, flo
         (TH, TK, TC), or None without a touch. With a single touch (or touches all closer
         than ``MIN_PAIR_M``) TK and TC are 0: no pair shows a curve or a crease.
     """
-    if not contacts:
+    return touch_shape([contacts])
+
+
+def touch_shape(readings: Sequence[Sequence[TactileContact]]
+                ) -> tuple[float, float, float] | None:
+    """TH, TK and TC of one object from the touches of one or more haptic readings.
+
+    Pairs of touches are formed within a reading only. TK is the least-squares curvature
+    over the smooth pairs of every reading; TH and TC are the medians over the readings of
+    each reading's top height and crease (the crease measured against the pooled
+    curvature).
+
+    Args:
+        readings: Each reading's touches (``HapticReading.contacts``); empty ones are
+            skipped.
+
+    Returns:
+        (TH, TK, TC) normalised to [0, 1], or None when no reading has a touch.
+    """
+    readings = [r for r in readings if r]
+    if not readings:
         return None
-    top = max(c.point[2] for c in contacts)
-    points = [np.asarray(c.point, float) for c in contacts]
-    normals = [_unit_vector(c.normal) for c in contacts]
-    pairs = [(float(np.linalg.norm(points[i] - points[j])),
-              float(np.linalg.norm(normals[i] - normals[j])),
-              math.acos(max(-1.0, min(1.0, float(np.dot(normals[i], normals[j]))))))
-             for i in range(len(points)) for j in range(i + 1, len(points))]
-    pairs = [p for p in pairs if p[0] >= MIN_PAIR_M]
-    if not pairs:
-        return _unit(top / H_MAX_M), 0.0, 0.0
-    smooth = [(dist, turn) for dist, turn, angle in pairs if angle < CREASE_RAD]
+    tops, all_pairs = [], []
+    for contacts in readings:
+        tops.append(max(c.point[2] for c in contacts))
+        points = [np.asarray(c.point, float) for c in contacts]
+        normals = [_unit_vector(c.normal) for c in contacts]
+        pairs = [(float(np.linalg.norm(points[i] - points[j])),
+                  float(np.linalg.norm(normals[i] - normals[j])),
+                  math.acos(max(-1.0, min(1.0, float(np.dot(normals[i], normals[j]))))))
+                 for i in range(len(points)) for j in range(i + 1, len(points))]
+        all_pairs.append([p for p in pairs if p[0] >= MIN_PAIR_M])
+    smooth = [(dist, turn) for pairs in all_pairs for dist, turn, angle in pairs
+              if angle < CREASE_RAD]
     curvature = (sum(t * d for d, t in smooth) / sum(d * d for d, _ in smooth)
                  if smooth else 0.0)
-    crease = max(max(0.0, angle - curvature * dist) for dist, _, angle in pairs)
-    return (_unit(top / H_MAX_M), _unit(curvature * TK_SCALE_M), _unit(crease / math.pi))
+    creases = [max((max(0.0, angle - curvature * dist) for dist, _, angle in pairs),
+                   default=0.0) for pairs in all_pairs]
+    return (_unit(float(np.median(tops)) / H_MAX_M), _unit(curvature * TK_SCALE_M),
+            _unit(float(np.median(creases)) / CREASE_FULL_RAD))
 
 
 def _unit_vector(v: Sequence[float]) -> np.ndarray:
