@@ -361,3 +361,48 @@ def test_the_ground_median_is_numpy_median() -> None:
         for v in (values, ties):
             got, want = _median(v), np.median(v)
             assert got == want and got.dtype == want.dtype
+
+
+def test_an_object_nearly_as_dark_as_the_ground_gets_its_own_roi() -> None:
+    """worlds/dark_bright.yaml: a grey-25 prism touching a grey-240 box. Every prism pixel
+    lies under fg_threshold; the dim foreground (segmentation.dim_foreground, from the
+    ground's own noise) finds it, and it becomes a ROI of its own at its place, apart from
+    the box. On a world of ordinary greys the dim foreground is empty."""
+    from pathlib import Path
+
+    from roger_common.types import Action, Goal
+    from roger_perception.segmentation import dim_foreground, foreground_mask
+    from roger_sim.simulator import Simulator
+    from roger_sim.world import load_world
+
+    worlds = Path(__file__).resolve().parent.parent / "worlds"
+    with Simulator(load_world(worlds / "dark_bright.yaml")) as sim:
+        _, frame = sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, (0.62, 0.0, 0.05)))
+    names = list(frame.label_names)
+    prism = frame.left_labels == names.index("dark_prism")
+    box = frame.left_labels == names.index("bright_box")
+    cfg = PerceptionConfig()
+    without = PerceptionConfig(dim_sigmas=0.0)
+    fg, _ = foreground_mask(frame.left, without)
+    assert prism.sum() > 100 and fg[prism].mean() < 0.05   # under the bright threshold
+    dim = dim_foreground(frame.left, fg, cfg).astype(bool)
+    assert prism[dim].mean() > 0.9 and dim[prism].mean() > 0.6
+    for config, found in ((without, False), (cfg, True)):
+        rois = Perception(config).process(frame)
+        mostly_prism = []
+        for r in rois:
+            u0, v0, u1, v1 = r.bbox
+            inside = frame.left_labels[v0:v1, u0:u1]
+            if np.mean(inside == names.index("dark_prism")) > 0.5:
+                mostly_prism.append(r)
+            if np.mean(inside == names.index("bright_box")) > 0.5:
+                assert np.mean(inside == names.index("dark_prism")) < 0.1
+        assert bool(mostly_prism) is found, config.dim_sigmas
+    assert len(mostly_prism) == 1
+    assert np.linalg.norm(np.asarray(mostly_prism[0].position[:2]) - (0.62, 0.09)) < 0.03
+    assert box.sum() > 100
+    with Simulator(load_world(worlds / "inspection.yaml")) as sim:
+        for target in ((0.6, 0.0, 0.05), (0.45, 0.35, 0.05), (0.5, -0.4, 0.05)):
+            _, frame = sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
+            fg, _ = foreground_mask(frame.left, without)
+            assert not dim_foreground(frame.left, fg, cfg).any(), target

@@ -49,6 +49,11 @@ class PerceptionConfig:
             distance of the contact point.
         mapped_radius_m: A ROI is mapped when a mapped position lies within this distance.
         fg_threshold: Retinal intensity above the background level that is an object.
+        dim_sigmas: A second, fainter foreground (``segmentation.dim_foreground``): after a
+            5x5 median filter, pixels this many of the ground's own noise (measured on this
+            retina) above the ground's median, 2 px or more from the ``fg_threshold``
+            foreground, in parts of at least ``min_roi_pixels``: objects darker than
+            ``fg_threshold`` above the ground (grey 25 renders 0.02 above it). 0: none.
         grad_threshold: Intensity gradient (per pixel, after a 1 px Gaussian) below which
             a foreground pixel is flat and may seed a watershed fragment; edges between
             objects or faces are steeper.
@@ -125,6 +130,7 @@ class PerceptionConfig:
     haptic_radius_m: float = 0.08
     mapped_radius_m: float = 0.08
     fg_threshold: float = 0.06
+    dim_sigmas: float = 5.0
     grad_threshold: float = 0.012
     sweep_near_m: float = 0.4
     sweep_far_m: float = 3.5
@@ -213,7 +219,7 @@ class PerceptionConfig:
             raise _fail("max_area_ratio", self.max_area_ratio, "need a finite number >= 1")
         if self.fg_threshold >= 1.0:
             raise _fail("fg_threshold", self.fg_threshold, "need < 1 (images are in [0, 1])")
-        non_negative = ("stereo_smoothness", "min_depth_rise", "motion_blur_px",
+        non_negative = ("stereo_smoothness", "min_depth_rise", "motion_blur_px", "dim_sigmas",
                         *self.weight_names())
         for name in non_negative:
             value = getattr(self, name)
