@@ -1,12 +1,16 @@
-"""roger sweep and Table 2 as one module: the statistics, the spec, resumption after a
-failure or a kill, and the embedded Ray's ports and leftovers (issue 37).
+"""roger sweep and Table 2 as one module: the statistics, the spec, the step-size
+schedules, resumption after a failure, a timeout or a kill, how much the training draws
+agree, and the embedded Ray's ports and leftovers (issue 37).
 
-The Ray test runs a tiny sweep (2 worlds x 1 seed x 2 policies, 6 cycles) through the
-real ``roger sweep`` command; the others run in this process without Ray.
+The Ray tests run a tiny sweep (2 worlds x 1 seed x 2 policies, 6 cycles) through the
+real ``roger sweep`` command; the others run in this process without Ray (the timeout
+test runs ``RayRunner`` against a stand-in for Ray of its own).
 """
 
 from __future__ import annotations
 
+import csv
+import hashlib
 import json
 import os
 import shutil
@@ -14,17 +18,24 @@ import subprocess
 import sys
 import tempfile
 import time
+import types
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 import yaml
 from conftest import WORLDS
 
+from roger_attention.config import QLearningConfig
+from roger_attention.fsm import STATES
+from roger_attention.qlearning import QTable
 from roger_common.errors import ConfigError
-from roger_experiments import sweep
-from roger_experiments.ray_runner import LOOPBACK_ENV
+from roger_common.types import Action
+from roger_experiments import ray_runner, sweep
+from roger_experiments.ray_runner import LOOPBACK_ENV, RayRunner
 from roger_experiments.runners import Job, RunSpec, SequentialRunner, run_in_process
 from roger_experiments.table2 import paired_test, wilcoxon_signed_rank
+from roger_experiments.train import TrainDraw
 
 TINY = {"worlds": [str(WORLDS / "table1.yaml"),
                    {"recipe": "default", "n_categories": 3, "copies": 2, "seeds": [5]}],
@@ -95,7 +106,66 @@ def test_a_training_world_that_is_an_evaluation_world_is_refused(tmp_path):
 def test_shipped_claims_spec_parses():
     spec = sweep.load_spec(Path(__file__).resolve().parents[1] / "sweeps" / "claims.yaml")
     assert len(spec.worlds) >= 20 and spec.draws == 3 and len(spec.seeds) == 2
+    assert spec.alpha_schedules == ("constant",)
     sweep.check_disjoint(spec)
+
+
+def _old_key(data: object, version: str) -> str:
+    """The cell and training key as sweep.digest made it before alpha_schedules existed,
+    written out here so that a change of the formula shows."""
+    text = json.dumps([data, version], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def test_alpha_schedules_add_cells_and_leave_the_old_keys_alone(tmp_path):
+    base = {**TINY, "draws": 2, "cycles": [6, "until-complete"]}
+    old = sweep.parse_spec(base, "tiny.yaml", tmp_path)
+    assert old.alpha_schedules == ("constant",)
+    old_cells = sweep.cells(old, "v1")
+    # The same cells and keys with the default said out loud, and the keys are the ones
+    # made before the key existed: a resumed old sweep finds every cell it ran.
+    said = sweep.cells(sweep.parse_spec({**base, "alpha_schedules": ["constant"]},
+                                        "tiny.yaml", tmp_path), "v1")
+    assert [(c.key, c.train_key) for c in said] == [(c.key, c.train_key) for c in old_cells]
+    for c in old_cells:
+        tkey = None
+        if c.draw:
+            tkey = _old_key({"train": asdict(TrainDraw(
+                c.draw, c.features, old.training.draw(c.draw, c.features).worlds,
+                (0, 1), 204))}, "v1")
+        assert c.train_key == tkey
+        assert c.key == _old_key({"world": c.world.name, "world_digest": c.world.digest(),
+                                  "policy": c.policy, "seed": c.seed,
+                                  "features": c.features, "cycles": c.cycles,
+                                  "draw": c.draw, "train": tkey, "mode": "in_process",
+                                  "stable_cycles": 40}, "v1")
+        assert c.alpha_schedule == ("constant" if c.policy == "qlearning" else "")
+    # Both schedules: the old cells plus the Q-learning cells again with "visits", each
+    # draw trained once per schedule under a key of its own.
+    both = sweep.cells(sweep.parse_spec({**base, "alpha_schedules": ["constant", "visits"]},
+                                        "tiny.yaml", tmp_path), "v1")
+    new = [c for c in both if c.key not in {o.key for o in old_cells}]
+    assert {c.key for c in old_cells} < {c.key for c in both}
+    assert len(new) == sum(c.policy == "qlearning" for c in old_cells)
+    assert {(c.policy, c.alpha_schedule) for c in new} == {("qlearning", "visits")}
+    by_draw = {(c.features, c.draw, c.alpha_schedule): c.train_key for c in both if c.draw}
+    for draw in (1, 2):
+        assert by_draw[("paper", draw, "constant")] != by_draw[("paper", draw, "visits")]
+    assert len({c.key for c in both}) == len(both)
+    row = new[0].row()
+    assert row["alpha_schedule"] == "visits" and list(row)[-1] == "alpha_schedule"
+    # Draw 0 (learning online in the run): a cell per schedule too.
+    online = sweep.cells(sweep.parse_spec({**TINY, "alpha_schedules": ["constant", "visits"]},
+                                          "tiny.yaml", tmp_path), "v1")
+    assert sorted(c.alpha_schedule for c in online) == ["", "", "constant", "constant",
+                                                        "visits", "visits"]
+    for bad, words in ((["annealed"], "bad.yaml: alpha_schedules: 'annealed' is not one of"),
+                       (["visits", "visits"], "bad.yaml: alpha_schedules: a list of distinct"),
+                       ([], "bad.yaml: alpha_schedules")):
+        with pytest.raises(ConfigError, match=words):
+            sweep.parse_spec({**TINY, "alpha_schedules": bad}, "bad.yaml", tmp_path)
+    assert sweep.parse_spec({**TINY, "alpha_schedules": "visits"}, "t.yaml",
+                            tmp_path).alpha_schedules == ("visits",)
 
 
 # --- Failures and resumption (in process, no Ray) -------------------------------------------
@@ -157,6 +227,222 @@ def test_failing_cells_are_recorded_and_only_unfinished_cells_run_again(tmp_path
     third = sweep.run_sweep(spec, out, runner(counting), runner(counting), "v1",
                             progress=False)
     assert again == [] and third["done"] == 2
+
+
+def _sequential(run_fn):
+    """A runner of jobs one after another in this process that, as RayRunner, puts the
+    caller's files (cell.json) into each finished job's folder."""
+    inner = SequentialRunner(run_fn, keep_going=True)
+
+    def go(jobs):
+        for job, result in inner(jobs):
+            if not isinstance(result, Exception):
+                for name, data in job.extra.items():
+                    (job.out / name).write_bytes(data)
+            yield job, result
+    return go
+
+
+def _trainer(jobs):
+    """The training draws one after another in this process (``roger sweep``'s task)."""
+    for job in jobs:
+        metrics = sweep.train_scheduled(job.spec, job.out)
+        for name, data in job.extra.items():
+            (job.out / name).write_bytes(data)
+        yield job, metrics
+
+
+def _runs(out: Path) -> list[dict[str, str]]:
+    with open(out / "runs.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_each_schedule_trains_its_own_tables_and_is_reported_apart(tmp_path):
+    spec = sweep.parse_spec({**TINY, "worlds": TINY["worlds"][1:], "draws": 1,
+                             "alpha_schedules": ["constant", "visits"],
+                             "training": {"worlds": 1, "seeds": 1, "cycles": 6}},
+                            "tiny.yaml", tmp_path)
+    out = tmp_path / "sweep"
+    result = sweep.run_sweep(spec, out, _sequential(run_in_process), _trainer, "v1",
+                             progress=False)
+    assert result["done"] == 3 and result["failed"] == 0
+    # Each draw's table learnt with its schedule, and each Q-learning cell ran its own.
+    cells = {(c.policy, c.alpha_schedule): c for c in sweep.cells(spec, "v1", out / "worlds")}
+    for schedule in ("constant", "visits"):
+        c = cells[("qlearning", schedule)]
+        table = json.loads((out / "train" / c.train_key / "qtable.json").read_text())
+        assert table["alpha_schedule"] == schedule
+        assert json.loads((out / "train" / c.train_key / "train.json").read_text())[
+            "alpha_schedule"] == schedule
+        cell = json.loads((out / "cells" / c.key / "cell.json").read_text())
+        assert cell["alpha_schedule"] == schedule and cell["train_key"] == c.train_key
+    assert {(r["policy"], r["alpha_schedule"], r["status"]) for r in _runs(out)} == {
+        ("qlearning", "constant", "done"), ("qlearning", "visits", "done"),
+        ("straightforward", "", "done")}
+    assert {(e["policy"], e["alpha_schedule"]) for e in result["table2"]} == {
+        ("qlearning", "constant"), ("qlearning", "visits"), ("straightforward", "")}
+    claims = json.loads((out / "claims.json").read_text())["claims"]
+    assert {c["alpha_schedule"] for c in claims} == {"constant", "visits"}
+    assert all(c["pairs"] == 1 for c in claims)  # each schedule against the one baseline
+    agreement = json.loads((out / "draws.json").read_text())["agreement"]
+    assert [(a["features"], a["alpha_schedule"], a["trained"], a["share"])
+            for a in agreement] == [("paper", "constant", 1, None),
+                                    ("paper", "visits", 1, None)]
+    report = (out / "report.md").read_text()
+    assert "| paper | visits | 6 |" in report and "step size visits" in report
+    # A table whose schedule is not its draw's (here edited by hand) is never run as the
+    # draw's: its cells fail, saying why.
+    c = cells[("qlearning", "constant")]
+    path = out / "train" / c.train_key / "qtable.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "alpha_schedule": "visits"}))
+    shutil.rmtree(out / "cells" / c.key)
+    again = sweep.run_sweep(spec, out, _sequential(run_in_process), _trainer, "v1",
+                            progress=False)
+    assert again["failed"] == 1 and not (out / "cells" / c.key).exists()
+    row = next(r for r in _runs(out) if r["key"] == c.key)
+    assert row["status"] == "failed" and "learnt with step size visits" in row["error"]
+
+
+def test_a_run_that_learns_online_starts_from_a_table_of_its_schedule(tmp_path):
+    spec = sweep.parse_spec({**TINY, "worlds": TINY["worlds"][1:], "policies": ["qlearning"],
+                             "alpha_schedules": ["visits"]}, "tiny.yaml", tmp_path)
+    out = tmp_path / "sweep"
+    assert sweep.run_sweep(spec, out, _sequential(run_in_process), _trainer, "v1",
+                           progress=False)["done"] == 1
+    (cell,) = sweep.cells(spec, "v1")
+    table = json.loads((out / "cells" / cell.key / "qtable.json").read_text())
+    assert table["alpha_schedule"] == "visits" and table["updates"] > 0
+
+
+class _Clock:
+    """ray_runner's ``time`` in the timeout test: a monotonic clock that moves only when
+    the stand-in Ray lets a wait's timeout pass."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def time(self) -> float:
+        return time.time()
+
+
+class _Ref:
+    def __init__(self) -> None:
+        self.ready = False
+        self.value: object = None
+
+
+class _FakeRay(types.ModuleType):
+    """As much of Ray as RayRunner uses, in this process: a task runs when it is
+    submitted, except one that ``hangs`` (a run that never finishes); ``wait`` with
+    nothing ready lets its timeout pass on the clock."""
+
+    def __init__(self, clock: _Clock, hangs) -> None:
+        super().__init__("ray")
+        self.clock, self.hangs = clock, hangs
+        self.cancelled: list[_Ref] = []
+        self.waits = 0
+
+    def is_initialized(self) -> bool:
+        return False
+
+    def remote(self, **_options):
+        def wrap(fn):
+            def submit(*args):
+                ref = _Ref()
+                if not self.hangs(args[1]):
+                    ref.value, ref.ready = fn(*args), True
+                return ref
+            return types.SimpleNamespace(remote=submit)
+        return wrap
+
+    def wait(self, refs, num_returns, timeout):
+        self.waits += 1
+        assert self.waits < 1000, "the runner never gave up on the run that hangs"
+        ready = [r for r in refs if r.ready][:num_returns]
+        if not ready:
+            self.clock.now += timeout
+        return ready, [r for r in refs if r not in ready]
+
+    def get(self, ref):
+        assert ref.ready, "a result asked of a run that never finished"
+        return ref.value
+
+    def cancel(self, ref, force=False):
+        self.cancelled.append(ref)
+
+
+def test_a_cell_past_its_timeout_fails_with_its_error_and_the_others_finish(
+        tmp_path, monkeypatch):
+    # One slot (workers: 1): the cells after the one that hangs run only if the timeout
+    # takes it off.
+    spec = sweep.parse_spec({**TINY, "worlds": TINY["worlds"][1:], "seeds": [0, 1],
+                             "timeout_s": 30}, "tiny.yaml", tmp_path)
+    clock = _Clock()
+    fake = _FakeRay(clock, lambda run: run.policy == "straightforward" and run.seed == 0)
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.setattr(ray_runner, "time", clock)
+    runner = RayRunner(run_in_process, workers=1, keep_going=True, timeout_s=spec.timeout_s)
+    out = tmp_path / "sweep"
+    result = sweep.run_sweep(spec, out, runner, _trainer, "v1", progress=False)
+    assert result["done"] == 3 and result["failed"] == 1
+    assert len(fake.cancelled) == 1 and not fake.cancelled[0].ready
+    rows = _runs(out)
+    hung = [r for r in rows if r["status"] == "failed"]
+    assert [(r["policy"], r["seed"]) for r in hung] == [("straightforward", "0")]
+    assert hung[0]["error"] == "timed out after 30 s"
+    assert "timed out after 30 s" in (out / "failed" / hung[0]["key"] / "error.txt").read_text()
+    assert json.loads((out / "failed" / hung[0]["key"] / "spec.json").read_text())[
+        "key"] == hung[0]["key"]
+    assert sorted((r["policy"], r["seed"]) for r in rows if r["status"] == "done") == [
+        ("qlearning", "0"), ("qlearning", "1"), ("straightforward", "1")]
+    assert "timed out after 30 s" in (out / "report.md").read_text()
+    # The next sweep tries the timed-out cell again (and only it).
+    fake.hangs = lambda run: False
+    again = sweep.run_sweep(spec, out, runner, _trainer, "v1", progress=False)
+    assert again["done"] == 4 and again["failed"] == 0
+    assert not (out / "failed" / hung[0]["key"]).exists()
+
+
+def test_draw_agreement_counts_the_states_whose_greedy_action_every_draw_shares(tmp_path):
+    spec = sweep.parse_spec({**TINY, "worlds": TINY["worlds"][1:], "draws": 3,
+                             "alpha_schedules": ["constant", "visits"]}, "tiny.yaml",
+                            tmp_path)
+    out = tmp_path / "sweep"
+    all_cells = sweep.cells(spec, "v1", out / "worlds")
+    undetermined, identified = STATES[0], STATES[2]  # "000" and "010"
+    assert (undetermined.bits, identified.bits) == ("000", "010")
+    for c in all_cells:
+        if not c.draw or c.alpha_schedule != "constant":
+            continue  # the visits draws: never trained (nothing to compare)
+        table = QTable(QLearningConfig())
+        # Draws 1 and 2 look twice in state 000, draw 3 touches; all map in 010.
+        best = Action.HAPTIC_IMPROVEMENT if c.draw == 3 else Action.VISUAL_IMPROVEMENT
+        table.q[undetermined.index, int(best)] = 0.5
+        table.q[identified.index, int(Action.MAP_UPDATE)] = 0.8
+        folder = out / "train" / c.train_key
+        folder.mkdir(parents=True, exist_ok=True)
+        table.save(folder / "qtable.json")
+        (folder / "cell.json").write_text("{}")
+    sweep.report(spec, all_cells, out, {})
+    constant, visits = json.loads((out / "draws.json").read_text())["agreement"]
+    assert (constant["alpha_schedule"], constant["draws"], constant["trained"]) == (
+        "constant", 3, 3)
+    assert constant["states_agreeing"] == 5 and constant["share"] == pytest.approx(5 / 6)
+    per_state = {s["state"]: s for s in constant["per_state"]}
+    assert per_state["000"]["greedy"] == {"1": ["visual_improvement"],
+                                          "2": ["visual_improvement"],
+                                          "3": ["haptic_improvement"]}
+    assert not per_state["000"]["agree"]
+    assert per_state["010"]["agree"] and per_state["010"]["greedy"]["3"] == ["map_update"]
+    assert (visits["trained"], visits["share"], visits["states_agreeing"]) == (0, None, None)
+    report = (out / "report.md").read_text()
+    assert "## Do the training draws agree?" in report
+    assert "5 of 6 states (83%) agree in all 3 trained draws" in report
+    assert "| paper | constant | 000 | visual improvement | visual improvement | " \
+           "haptic improvement | no |" in report
 
 
 # --- The embedded Ray: ports, results, leftovers --------------------------------------------

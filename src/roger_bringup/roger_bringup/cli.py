@@ -241,19 +241,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    """``roger sweep``: Table 2 over worlds x seeds x policies x feature modes x training
-    draws, every run a Ray task; resumes from the cells already in DIR."""
+    """``roger sweep``: Table 2 over worlds x seeds x policies x feature modes x step-size
+    schedules x training draws, every run a Ray task; resumes from the cells already in
+    DIR."""
     from roger_experiments.ray_runner import code_version, start_ray, stop_ray
-    from roger_experiments.sweep import load_spec, run_sweep
+    from roger_experiments.sweep import load_spec, run_sweep, train_scheduled
 
     spec = load_spec(args.spec)
     version = code_version()
     start_ray(args.address, args.workers if args.workers and args.workers > 0 else None)
     try:
-        from roger_experiments.train import train_draw
-
         runner = _sweep_runner(args, spec.mode == "graph", spec.timeout_s, version)
-        trainer = replace(runner, run=train_draw, domains=(), timeout_s=None)
+        trainer = replace(runner, run=train_scheduled, domains=(), timeout_s=None)
         result = run_sweep(spec, args.out, runner, trainer, version, progress=not args.quiet,
                            in_flight=lambda: runner.in_flight + trainer.in_flight)
     except KeyboardInterrupt:
@@ -265,7 +264,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f"{result['done']} of {result['cells']} runs done, {result['failed']} failed")
     for c in result["claims"]:
         lo, hi = c["ci95"]
-        print(f"  {c['features']:>8} {c['budget']:>5} {c['verdict']:>13}: {c['claim']} "
+        print(f"  {c['features']:>8} {c['alpha_schedule']:>8} {c['budget']:>5} "
+              f"{c['verdict']:>13}: {c['claim']} "
               f"(mean {c['mean_difference']:+.2f} [{lo:+.2f}, {hi:+.2f}], Wilcoxon p "
               f"{c['wilcoxon_p']:.3g}, {c['pairs']} pairs)")
     print(f"runs: {args.out / 'runs.csv'}; report: {args.out / 'report.md'}")

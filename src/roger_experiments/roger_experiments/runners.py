@@ -22,7 +22,7 @@ from typing import Any, Protocol
 import yaml
 
 from roger_common.types import WorldSpec
-from roger_experiments.train import TrainDraw
+from roger_experiments.train import TrainDraw, fresh_table
 from roger_sim.world import parse_world
 
 #: Most cycles a run until the robot's own completion may take.
@@ -49,6 +49,9 @@ class RunSpec:
             qtable.json.
         stable_cycles: See ``Table2Spec``.
         max_cycles: Most cycles of a run until completion.
+        alpha_schedule: The step-size schedule (``QLearningConfig.alpha_schedule``) of a
+            Q-learning run that learns online (no ``qtable_text``); a given table keeps
+            the schedule it learnt with.
     """
 
     world: str
@@ -60,6 +63,7 @@ class RunSpec:
     qtable_text: str | None = None
     stable_cycles: int = 40
     max_cycles: int = COMPLETE_MAX
+    alpha_schedule: str = "constant"
 
     @classmethod
     def of_file(cls, world: Path, **kwargs: Any) -> RunSpec:
@@ -118,10 +122,13 @@ def run_in_process(spec: RunSpec, out: Path) -> dict[str, Any]:
 def materialized_qtable(spec: RunSpec, out: Path) -> Iterator[tuple[Path | None, bool]]:
     """The Q-table file a run reads and whether it learns: a scratch copy of
     ``spec.qtable_text`` (frozen), or, for a Q-learning run without one, the run's own
-    ``out/qtable.json`` (learning); (None, False) for the straightforward policy."""
+    ``out/qtable.json`` (learning from a fresh table of ``spec.alpha_schedule``); (None,
+    False) for the straightforward policy."""
     if spec.policy != "qlearning":
         yield None, False
     elif spec.qtable_text is None:
+        if spec.alpha_schedule != "constant":
+            fresh_table(out, spec.alpha_schedule)  # the table keeps it while it learns
         yield out / "qtable.json", True
     else:
         scratch = Path(tempfile.mkdtemp(prefix="roger-qtable-"))

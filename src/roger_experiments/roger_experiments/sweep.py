@@ -1,11 +1,12 @@
 """``roger sweep SPEC.yaml --out DIR``: Table 2 over worlds x seeds x policies x feature
-modes x training draws, and the paper's claims judged across worlds.
+modes x step-size schedules x training draws, and the paper's claims judged across worlds.
 
 Read top to bottom: the spec (``SweepSpec``, parsed from the YAML file), its cells (one run
 each, keyed by a hash of the cell and the code version), train (a Q-table per draw and
-feature mode on random worlds disjoint from the evaluation worlds), run (the cells not on
-disk yet), score (runs.csv, Table 2 with spreads across worlds and draws), judge (the
-claims, a paired test over world x seed) and report (report.md, one figure per column).
+feature mode and step-size schedule on random worlds disjoint from the evaluation worlds),
+run (the cells not on disk yet), score (runs.csv, Table 2 with spreads across worlds and
+draws, how much the draws' tables agree), judge (the claims, a paired test over world x
+seed) and report (report.md, one figure per column).
 
 What runs the runs is passed in (``runners.Runner``; ``roger sweep`` hands in a
 ``ray_runner.RayRunner``). The runner writes each finished cell's folder atomically; this
@@ -29,6 +30,9 @@ from typing import Any
 
 import yaml
 
+from roger_attention.config import ALPHA_SCHEDULES
+from roger_attention.fsm import STATES, possible_actions
+from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
 from roger_experiments import plots
@@ -44,7 +48,12 @@ from roger_experiments.table2 import (
     mean_sd,
     paired_test,
 )
-from roger_experiments.train import RandomWorlds, TrainDraw, world_fingerprint
+from roger_experiments.train import (
+    RandomWorlds,
+    TrainDraw,
+    train_in_process,
+    world_fingerprint,
+)
 from roger_sim.world import load_world, parse_world, world_to_dict
 from roger_sim.worldgen import random_world
 
@@ -57,7 +66,11 @@ RECIPE_ARGS: tuple[str, ...] = ("n_categories", "copies", "size_range", "texture
 MODES: tuple[str, ...] = ("in_process", "graph")
 UNTIL_COMPLETE = "until-complete"
 SPEC_KEYS: tuple[str, ...] = ("worlds", "seeds", "policies", "features", "draws", "cycles",
-                              "mode", "training", "stable_cycles", "timeout_s")
+                              "mode", "training", "stable_cycles", "timeout_s",
+                              "alpha_schedules")
+#: The paper's step size (``QLearningConfig.alpha_schedule``): the schedule of every sweep
+#: before ``alpha_schedules`` existed, so it adds nothing to a key (old cells keep theirs).
+PAPER_SCHEDULE = "constant"
 
 # --- The spec ---------------------------------------------------------------------------
 
@@ -78,6 +91,14 @@ class World:
 
 
 @dataclass(frozen=True)
+class ScheduledDraw(TrainDraw):
+    """A training draw of the sweep: ``train.TrainDraw`` and the Q-learning step-size
+    schedule its table learns with (``QLearningConfig.alpha_schedule``)."""
+
+    alpha_schedule: str = PAPER_SCHEDULE
+
+
+@dataclass(frozen=True)
 class TrainingSpec:
     """How each draw's Q-table is trained: ``worlds`` random worlds of the demo's recipe
     (seeds from ``world_seed0``, each draw its own), ``seeds`` run seeds each."""
@@ -87,11 +108,13 @@ class TrainingSpec:
     cycles: int = 204
     world_seed0: int = 100000
 
-    def draw(self, k: int, features: str) -> TrainDraw:
-        """Draw ``k`` (1, 2, ...) in one feature mode."""
-        return TrainDraw(k, features, RandomWorlds(self.worlds, self.world_seed0
-                                                   + (k - 1) * self.worlds),
-                         tuple(range(self.seeds)), self.cycles)
+    def draw(self, k: int, features: str, alpha_schedule: str = PAPER_SCHEDULE
+             ) -> ScheduledDraw:
+        """Draw ``k`` (1, 2, ...) in one feature mode, trained with one step-size schedule
+        (draw ``k`` of either schedule trains on the same worlds and seeds)."""
+        return ScheduledDraw(k, features, RandomWorlds(self.worlds, self.world_seed0
+                                                       + (k - 1) * self.worlds),
+                             tuple(range(self.seeds)), self.cycles, alpha_schedule)
 
 
 @dataclass(frozen=True)
@@ -110,6 +133,9 @@ class SweepSpec:
         training: How a draw trains.
         stable_cycles: The completion rule's cycles without a new object.
         timeout_s: Wall seconds after which a run fails (None: no limit).
+        alpha_schedules: Step-size schedules of Q-learning (``QLearningConfig.
+            alpha_schedule``): each draw is trained (or, with ``draws`` 0, each run learns)
+            once per schedule.
     """
 
     worlds: tuple[World, ...]
@@ -122,6 +148,7 @@ class SweepSpec:
     training: TrainingSpec = field(default_factory=TrainingSpec)
     stable_cycles: int = 40
     timeout_s: float | None = None
+    alpha_schedules: tuple[str, ...] = (PAPER_SCHEDULE,)
 
 
 def _list(data: dict[str, Any], key: str, default: list[Any]) -> list[Any]:
@@ -217,11 +244,19 @@ def parse_spec(data: Any, source: str, base: Path) -> SweepSpec:
         train_spec = TrainingSpec(**training)
     except TypeError as exc:
         raise ConfigError(f"{source}: training: {exc}") from None
+    schedules = _list(data, "alpha_schedules", [PAPER_SCHEDULE])
+    for a in schedules:
+        if a not in ALPHA_SCHEDULES:
+            raise ConfigError(f"{source}: alpha_schedules: {a!r} is not one of "
+                              f"{', '.join(ALPHA_SCHEDULES)}")
+    if not schedules or len(set(schedules)) != len(schedules):
+        raise ConfigError(f"{source}: alpha_schedules: a list of distinct schedules "
+                          f"({', '.join(ALPHA_SCHEDULES)}), got {schedules!r}")
     timeout = data.get("timeout_s")
     return SweepSpec(tuple(worlds), tuple(_seeds(data.get("seeds", [0]), f"{source}: seeds")),
                      tuple(policies), tuple(features), draws, tuple(cycles), mode, train_spec,
                      int(data.get("stable_cycles", 40)),
-                     None if timeout is None else float(timeout))
+                     None if timeout is None else float(timeout), tuple(schedules))
 
 
 def load_spec(path: Path, base: Path | None = None) -> SweepSpec:
@@ -250,6 +285,8 @@ class Cell:
     train_key: str | None
     #: The world file the run reads (a recipe's is written to DIR/worlds/ by the sweep).
     world_file: str = ""
+    #: Q-learning's step-size schedule ("" for the straightforward policy, which has none).
+    alpha_schedule: str = ""
 
     def row(self) -> dict[str, Any]:
         """The cell's spec as runs.csv's first columns."""
@@ -259,7 +296,7 @@ class Cell:
                 "seed": self.seed, "policy": self.policy, "features": self.features,
                 "draw": "" if self.draw is None else self.draw,
                 "budget": UNTIL_COMPLETE if self.cycles is None else self.cycles,
-                "train_key": self.train_key or ""}
+                "train_key": self.train_key or "", "alpha_schedule": self.alpha_schedule}
 
 
 def digest(data: Any, version: str) -> str:
@@ -269,13 +306,17 @@ def digest(data: Any, version: str) -> str:
 
 
 def train_key(draw: TrainDraw, version: str) -> str:
-    """The key of a training draw."""
-    return digest({"train": asdict(draw)}, version)
+    """The key of a training draw: its spec with its step-size schedule, which is left out
+    when it is the paper's (the keys of the draws trained before there was a choice)."""
+    data = asdict(draw)
+    if data.get("alpha_schedule", PAPER_SCHEDULE) == PAPER_SCHEDULE:
+        data.pop("alpha_schedule", None)
+    return digest({"train": data}, version)
 
 
 def cells(spec: SweepSpec, version: str, folder: Path = Path("worlds")) -> list[Cell]:
-    """Every run of the sweep, Q-learning once per draw, the straightforward policy once
-    (``folder``: where the recipes' worlds are written)."""
+    """Every run of the sweep, Q-learning once per step-size schedule and draw, the
+    straightforward policy once (``folder``: where the recipes' worlds are written)."""
     out: list[Cell] = []
     for world in spec.worlds:
         wdigest = world.digest()
@@ -284,19 +325,33 @@ def cells(spec: SweepSpec, version: str, folder: Path = Path("worlds")) -> list[
                 for seed in spec.seeds:
                     for policy in spec.policies:
                         draws: list[int | None] = [None]
+                        schedules = [""]
                         if policy == "qlearning":
                             draws = list(range(1, spec.draws + 1)) if spec.draws else [0]
-                        for draw in draws:
-                            tkey = (train_key(spec.training.draw(draw, features), version)
-                                    if draw else None)
-                            data = {"world": world.name, "world_digest": wdigest,
-                                    "policy": policy, "seed": seed, "features": features,
-                                    "cycles": cycles, "draw": draw, "train": tkey,
-                                    "mode": spec.mode, "stable_cycles": spec.stable_cycles}
-                            out.append(Cell(digest(data, version), world, policy, seed,
-                                            features, cycles, draw, tkey,
-                                            world.file or str(folder / f"{world.name}.yaml")))
+                            schedules = list(spec.alpha_schedules)
+                        for schedule in schedules:
+                            for draw in draws:
+                                out.append(_make_cell(
+                                    spec, version, folder, world, wdigest, policy, seed,
+                                    features, cycles, draw, schedule))
     return out
+
+
+def _make_cell(spec: SweepSpec, version: str, folder: Path, world: World, wdigest: str,
+               policy: str, seed: int, features: str, cycles: int | None,
+               draw: int | None, schedule: str) -> Cell:
+    tkey = (train_key(spec.training.draw(draw, features, schedule), version)
+            if draw else None)
+    data: dict[str, Any] = {"world": world.name, "world_digest": wdigest, "policy": policy,
+                            "seed": seed, "features": features, "cycles": cycles,
+                            "draw": draw, "train": tkey, "mode": spec.mode,
+                            "stable_cycles": spec.stable_cycles}
+    if schedule not in ("", PAPER_SCHEDULE):
+        # Only another schedule than the paper's is in the key: the cells of a spec
+        # without alpha_schedules keep the keys they had before the key existed.
+        data["alpha_schedule"] = schedule
+    return Cell(digest(data, version), world, policy, seed, features, cycles, draw, tkey,
+                world.file or str(folder / f"{world.name}.yaml"), schedule)
 
 
 def check_disjoint(spec: SweepSpec) -> None:
@@ -317,6 +372,14 @@ def is_done(folder: Path) -> bool:
 
 
 # --- Train, run -------------------------------------------------------------------------
+
+
+def train_scheduled(spec: TrainDraw, out: Path) -> dict[str, Any]:
+    """``train.train_draw`` with the draw's step-size schedule: what a sweep's training
+    task runs (a pure function of ``spec``)."""
+    schedule = spec.alpha_schedule if isinstance(spec, ScheduledDraw) else PAPER_SCHEDULE
+    return train_in_process(spec.worlds, list(spec.seeds), spec.cycles, out, progress=False,
+                            features=spec.features, alpha_schedule=schedule)
 
 
 def run_sweep(spec: SweepSpec, out: Path, runner: Runner, train_runner: Runner,
@@ -345,7 +408,7 @@ def run_sweep(spec: SweepSpec, out: Path, runner: Runner, train_runner: Runner,
             if not path.exists():
                 atomic_write_bytes(path, w.text.encode())
     all_cells = cells(spec, version, out / "worlds")
-    draws = {c.train_key: spec.training.draw(c.draw, c.features)
+    draws = {c.train_key: spec.training.draw(c.draw, c.features, c.alpha_schedule)
              for c in all_cells if c.train_key and c.draw}
     todo_train = [Job(d, out / "train" / k, {"cell.json": _json({"train": asdict(d),
                                                                   "code_version": version})})
@@ -366,15 +429,26 @@ def run_sweep(spec: SweepSpec, out: Path, runner: Runner, train_runner: Runner,
             tick(f"trained {key}")
         tables = {k: (out / "train" / k / "qtable.json").read_text()
                   for k in draws if is_done(out / "train" / k)}
+        for k, text in list(tables.items()):
+            # The key holds the schedule; this holds the table to it as well, so that a
+            # table learnt with one schedule never runs as the other's.
+            learnt = json.loads(text).get("alpha_schedule", PAPER_SCHEDULE)
+            if learnt != draws[k].alpha_schedule:
+                del tables[k]
+                failed[k] = (f"its table learnt with step size {learnt}, not "
+                             f"{draws[k].alpha_schedule}")
         jobs = []
         for c in all_cells:
             if is_done(out / "cells" / c.key):
                 continue
             if c.train_key and c.train_key not in tables:
-                failed[c.key] = f"its training {c.train_key} failed"
+                why = failed.get(c.train_key, "").strip().splitlines()
+                failed[c.key] = (f"its training {c.train_key} failed"
+                                 + (f": {why[-1]}" if why else ""))
                 continue
             run = RunSpec(c.world_file, c.world.text, c.policy, c.seed, c.cycles, c.features,
-                          tables[c.train_key] if c.train_key else None, spec.stable_cycles)
+                          tables[c.train_key] if c.train_key else None, spec.stable_cycles,
+                          alpha_schedule=c.alpha_schedule or PAPER_SCHEDULE)
             jobs.append(Job(run, out / "cells" / c.key,
                             {"cell.json": _json({**c.row(), "mode": spec.mode,
                                                  "code_version": version})}))
@@ -454,16 +528,19 @@ def _num(v: Any) -> float | None:
 
 
 def spread_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Table 2 per feature mode, budget and policy: mean and sd over every run, sd across
-    worlds (of the world means) and across draws (of the draw means)."""
-    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    """Table 2 per feature mode, budget, policy and step-size schedule: mean and sd over
+    every run, sd across worlds (of the world means) and across draws (of the draw
+    means)."""
+    groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
         if r["status"] == "done":
-            groups[(r["features"], str(r["budget"]), r["policy"])].append(r)
+            groups[(r["features"], str(r["budget"]), r["policy"],
+                    r.get("alpha_schedule", ""))].append(r)
     out = []
-    for (features, budget, policy), runs in sorted(groups.items()):
+    for (features, budget, policy, schedule), runs in sorted(groups.items()):
         entry: dict[str, Any] = {"features": features, "budget": budget, "policy": policy,
-                                 "runs": len(runs), "worlds": len({r["world_name"] for r in runs})}
+                                 "alpha_schedule": schedule, "runs": len(runs),
+                                 "worlds": len({r["world_name"] for r in runs})}
         for col in (*COLUMNS, *SCORES, "cycles"):
             vals = [(r, x) for r in runs if (x := _num(r.get(col))) is not None]
             m, sd = mean_sd([x for _, x in vals])
@@ -480,67 +557,129 @@ def spread_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def _schedules(rows: list[dict[str, Any]]) -> list[str]:
+    """The step-size schedules of the Q-learning rows ([""] when there are none)."""
+    return sorted({r.get("alpha_schedule", "") for r in rows
+                   if r["policy"] == "qlearning"}) or [""]
+
+
+def _against(rows: list[dict[str, Any]], schedule: str) -> list[dict[str, Any]]:
+    """The rows that face each other under one schedule: its Q-learning runs and the
+    straightforward policy's (which has no schedule, so it faces every one)."""
+    return [r for r in rows
+            if r["policy"] != "qlearning" or r.get("alpha_schedule", "") == schedule]
+
+
 def judge(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The five claims per feature mode and fixed budget, paired over world x seed: the
-    Q-learning value (mean over the draws) minus the straightforward one."""
+    """The five claims per feature mode, step-size schedule and fixed budget, paired over
+    world x seed: the Q-learning value (mean over the draws) minus the straightforward
+    one."""
     judged = []
     done = [r for r in rows if r["status"] == "done"]
     for features in sorted({r["features"] for r in done}):
-        for budget in sorted({str(r["budget"]) for r in done} - {UNTIL_COMPLETE}):
-            mine = [r for r in done if r["features"] == features and str(r["budget"]) == budget]
-            for col, sign, text in CLAIMS:
-                q: dict[tuple[str, int], list[float]] = defaultdict(list)
-                s: dict[tuple[str, int], float] = {}
-                for r in mine:
-                    x = _num(r.get(col))
-                    if x is None:
-                        continue
-                    if r["policy"] == "qlearning":
-                        q[(r["world_name"], int(r["seed"]))].append(x)
-                    else:
-                        s[(r["world_name"], int(r["seed"]))] = x
-                by_world: dict[str, list[float]] = defaultdict(list)
-                for pair, vals in q.items():
-                    if pair in s:
-                        by_world[pair[0]].append(statistics.fmean(vals) - s[pair])
-                judged.append({"claim": text, "column": col, "direction": sign,
-                               "features": features, "budget": budget,
-                               **paired_test(by_world, sign)})
+        of_mode = [r for r in done if r["features"] == features]
+        for schedule in _schedules(of_mode):
+            for budget in sorted({str(r["budget"]) for r in done} - {UNTIL_COMPLETE}):
+                mine = [r for r in _against(of_mode, schedule) if str(r["budget"]) == budget]
+                for col, sign, text in CLAIMS:
+                    q: dict[tuple[str, int], list[float]] = defaultdict(list)
+                    s: dict[tuple[str, int], float] = {}
+                    for r in mine:
+                        x = _num(r.get(col))
+                        if x is None:
+                            continue
+                        if r["policy"] == "qlearning":
+                            q[(r["world_name"], int(r["seed"]))].append(x)
+                        else:
+                            s[(r["world_name"], int(r["seed"]))] = x
+                    by_world: dict[str, list[float]] = defaultdict(list)
+                    for pair, vals in q.items():
+                        if pair in s:
+                            by_world[pair[0]].append(statistics.fmean(vals) - s[pair])
+                    judged.append({"claim": text, "column": col, "direction": sign,
+                                   "features": features, "alpha_schedule": schedule,
+                                   "budget": budget, **paired_test(by_world, sign)})
     return judged
 
 
-def completion(rows: list[dict[str, Any]], out: Path) -> dict[str, Any]:
-    """The sixth claim per feature mode, from the until-complete runs."""
-    result = {}
+def completion(rows: list[dict[str, Any]], out: Path) -> list[dict[str, Any]]:
+    """The sixth claim per feature mode and step-size schedule, from the until-complete
+    runs."""
+    result = []
     for features in sorted({r["features"] for r in rows}):
-        mine = [read_run(out / "cells" / r["key"]) for r in rows
-                if r["status"] == "done" and r["features"] == features
-                and r["budget"] == UNTIL_COMPLETE]
-        if mine:
-            result[features] = check_completion(mine)
+        of_mode = [r for r in rows if r["status"] == "done" and r["features"] == features
+                   and r["budget"] == UNTIL_COMPLETE]
+        for schedule in _schedules(of_mode):
+            mine = [read_run(out / "cells" / r["key"]) for r in _against(of_mode, schedule)]
+            if mine:
+                result.append({"features": features, "alpha_schedule": schedule,
+                               **check_completion(mine)})
+    return result
+
+
+def draw_agreement(all_cells: list[Cell], out: Path) -> list[dict[str, Any]]:
+    """How much the training draws agree, per feature mode and step-size schedule: each
+    state's greedy action in each draw's table (train/<key>/qtable.json; several when
+    tied) and the share of the states whose greedy action is the same in every trained
+    draw (None with fewer than two)."""
+    keys: dict[tuple[str, str], dict[int, str]] = defaultdict(dict)
+    for c in all_cells:
+        if c.draw and c.train_key:
+            keys[(c.features, c.alpha_schedule)][c.draw] = c.train_key
+    result = []
+    for (features, schedule), by_draw in sorted(keys.items()):
+        greedy: dict[int, dict[str, list[str]]] = {}
+        for draw, key in sorted(by_draw.items()):
+            if is_done(out / "train" / key):
+                table = QTable.load(out / "train" / key / "qtable.json")
+                greedy[draw] = {s.bits: [a.name.lower() for a in
+                                         table.greedy_actions(s, possible_actions(s))]
+                                for s in STATES}
+        compared = len(greedy) >= 2
+        states: list[dict[str, Any]] = []
+        agreeing = 0
+        for s in STATES:
+            per_draw = {str(d): g[s.bits] for d, g in greedy.items()}
+            agree = compared and len({tuple(v) for v in per_draw.values()}) == 1
+            agreeing += agree
+            states.append({"state": s.bits, "greedy": per_draw, "agree": agree})
+        result.append({"features": features, "alpha_schedule": schedule,
+                       "draws": len(by_draw), "trained": len(greedy),
+                       "states": len(STATES),
+                       "states_agreeing": agreeing if compared else None,
+                       "share": agreeing / len(STATES) if compared else None,
+                       "per_state": states})
     return result
 
 
 def report(spec: SweepSpec, all_cells: list[Cell], out: Path, failed: dict[str, str]
            ) -> dict[str, Any]:
-    """runs.csv, table2.json, claims.json, the figures and report.md."""
+    """runs.csv, table2.json, claims.json, draws.json, the figures and report.md."""
     rows = runs_table(all_cells, out, failed)
     write_csv(out / "runs.csv", rows)
     table = spread_table(rows)
     claims = judge(rows)
     complete = completion(rows, out)
+    agreement = draw_agreement(all_cells, out)
     atomic_write_bytes(out / "table2.json", _json(table))
     atomic_write_bytes(out / "claims.json", _json({"claims": claims, "completion": complete}))
+    atomic_write_bytes(out / "draws.json", _json({"agreement": agreement}))
     figures = []
+    several = len(spec.alpha_schedules) > 1
     for col in COLUMNS:
         values: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
-        per_world: dict[tuple[str, str, str], list[float]] = defaultdict(list)
+        per_world: dict[tuple[str, str, str, str], list[float]] = defaultdict(list)
         for r in rows:
             if r["status"] == "done" and r["budget"] != UNTIL_COMPLETE \
                     and (x := _num(r.get(col))) is not None:
-                per_world[(r["features"], r["policy"], r["world_name"])].append(x)
-        for (features, policy, _), xs in sorted(per_world.items()):
-            values[features][policy].append(statistics.fmean(xs))
+                per_world[(r["features"], r["alpha_schedule"], r["policy"],
+                           r["world_name"])].append(x)
+        for (features, schedule, policy, _), xs in sorted(per_world.items()):
+            # One panel per feature mode, and per schedule when there are several (the
+            # straightforward policy, which has none, in each).
+            for s in (list(spec.alpha_schedules) if several and not schedule else [schedule]):
+                panel = f"{features} / {s}" if several else features
+                values[panel][policy].append(statistics.fmean(xs))
         if values:
             path = out / f"fig_{col}.png"
             plots.distribution(values, col.replace("_", " "), path)
@@ -549,8 +688,9 @@ def report(spec: SweepSpec, all_cells: list[Cell], out: Path, failed: dict[str, 
               "failed": sum(r["status"] == "failed" for r in rows)}
     atomic_write_bytes(out / "report.md",
                        report_markdown(spec, counts, table, claims, complete, figures,
-                                       rows).encode())
-    return {**counts, "table2": table, "claims": claims, "completion": complete}
+                                       rows, agreement).encode())
+    return {**counts, "table2": table, "claims": claims, "completion": complete,
+            "draw_agreement": agreement}
 
 
 def _cell(c: dict[str, Any] | None) -> str:
@@ -563,15 +703,50 @@ def _cell(c: dict[str, Any] | None) -> str:
     return text
 
 
+def agreement_markdown(agreement: list[dict[str, Any]]) -> list[str]:
+    """report.md's lines on how much the training draws agree (none without draws)."""
+    if not agreement:
+        return []
+    lines = ["", "## Do the training draws agree?", "",
+             "Per feature mode and step size, the greedy action of each state in each "
+             "draw's table (several when tied; a state no training run reached keeps its "
+             "initial values, all tied), and how many of the six states have the same "
+             "greedy action in every trained draw. Details in draws.json.", ""]
+    for a in agreement:
+        head = f"**{a['features']}, step size {a['alpha_schedule']}**: "
+        if a["share"] is None:
+            lines.append(head + f"{a['trained']} of {a['draws']} draws trained, nothing to "
+                         "compare.")
+        else:
+            lines.append(head + f"{a['states_agreeing']} of {a['states']} states "
+                         f"({a['share']:.0%}) agree in all {a['trained']} trained draws"
+                         + ("" if a["trained"] == a["draws"] else f" (of {a['draws']})")
+                         + ".")
+    draws = sorted({d for a in agreement for st in a["per_state"] for d in st["greedy"]},
+                   key=int)
+    lines += ["", "| features | step size | state | " + " | ".join(
+        f"draw {d}" for d in draws) + " | same in every draw |",
+        "|" + "---|" * (4 + len(draws))]
+    for a in agreement:
+        for st in a["per_state"]:
+            acts = [" = ".join(st["greedy"].get(d, ["-"])).replace("_", " ") for d in draws]
+            lines.append(f"| {a['features']} | {a['alpha_schedule']} | {st['state']} | "
+                         + " | ".join(acts) + f" | {'yes' if st['agree'] else 'no'} |")
+    return lines
+
+
 def report_markdown(spec: SweepSpec, counts: dict[str, int], table: list[dict[str, Any]],
-                    claims: list[dict[str, Any]], complete: dict[str, Any],
-                    figures: list[str], rows: list[dict[str, Any]]) -> str:
-    """report.md: what ran, Table 2 with spreads, the claims across worlds, the figures."""
+                    claims: list[dict[str, Any]], complete: list[dict[str, Any]],
+                    figures: list[str], rows: list[dict[str, Any]],
+                    agreement: list[dict[str, Any]] | None = None) -> str:
+    """report.md: what ran, Table 2 with spreads, the claims across worlds, how much the
+    training draws agree, the figures."""
     cols = (*COLUMNS, *SCORES)
     lines = ["# Sweep: Table 2 and the paper's claims across worlds", "",
              f"{len(spec.worlds)} worlds x {len(spec.seeds)} seeds x "
              f"{len(spec.policies)} policies x {len(spec.features)} feature modes, "
-             f"{spec.draws} training draws, budgets "
+             f"{spec.draws} training draws, Q-learning step size "
+             f"{', '.join(spec.alpha_schedules)}, budgets "
              f"{', '.join(UNTIL_COMPLETE if c is None else str(c) for c in spec.cycles)}, "
              f"mode {spec.mode}: {counts['cells']} runs, {counts['done']} done, "
              f"{counts['failed']} failed. Every run's row is in runs.csv.", "",
@@ -579,48 +754,55 @@ def report_markdown(spec: SweepSpec, counts: dict[str, int], table: list[dict[st
              "Mean ± sd across worlds (of each world's mean over seeds and draws); for "
              "Q-learning with several draws, the sd across draws (of each draw's mean) in "
              "brackets.", "",
-             "| features | budget | policy | runs | " + " | ".join(
+             "| features | budget | policy | step size | runs | " + " | ".join(
                  c.replace("_", " ") for c in cols) + " |",
-             "|" + "---|" * (4 + len(cols))]
+             "|" + "---|" * (5 + len(cols))]
     for e in table:
-        lines.append(f"| {e['features']} | {e['budget']} | {e['policy']} | {e['runs']} | "
+        lines.append(f"| {e['features']} | {e['budget']} | {e['policy']} | "
+                     f"{e.get('alpha_schedule') or '-'} | {e['runs']} | "
                      + " | ".join(_cell(e.get(c)) for c in cols) + " |")
     lines += ["", "## The paper's claims across worlds", "",
               "Each pair is one world and one run seed: Q-learning (its mean over the "
-              "training draws) minus the straightforward policy. The test is the exact "
-              "Wilcoxon signed-rank test over the pairs: counts are discrete and their "
-              "differences far from normal (no t test), and the signed ranks use how large "
-              "each difference is, which the sign test (shown too) throws away. The effect "
-              "is the mean difference with a bootstrap 95 % interval that resamples whole "
-              "worlds (the seeds of one world are not independent), and the rank-biserial "
-              "correlation r. *holds*: the interval lies on the claimed side of 0 and "
-              "p < 0.05; *contradicted*: on the other side and p < 0.05; else *not shown*.",
+              "training draws, per step size) minus the straightforward policy. The test is "
+              "the exact Wilcoxon signed-rank test over the pairs: counts are discrete and "
+              "their differences far from normal (no t test), and the signed ranks use how "
+              "large each difference is, which the sign test (shown too) throws away. The "
+              "effect is the mean difference with a bootstrap 95 % interval that resamples "
+              "whole worlds (the seeds of one world are not independent), and the "
+              "rank-biserial correlation r. *holds*: the interval lies on the claimed side "
+              "of 0 and p < 0.05; *contradicted*: on the other side and p < 0.05; else "
+              "*not shown*.",
               "",
-              "| features | budget | claim | verdict | pairs (worlds) | holds in | "
-              "mean difference [95 % CI] | r | Wilcoxon p | sign test p |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| features | step size | budget | claim | verdict | pairs (worlds) | holds in "
+              "| mean difference [95 % CI] | r | Wilcoxon p | sign test p |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in claims:
         lo, hi = c["ci95"]
-        lines.append(f"| {c['features']} | {c['budget']} | {c['claim']} | **{c['verdict']}** "
+        lines.append(f"| {c['features']} | {c['alpha_schedule'] or '-'} | {c['budget']} | "
+                     f"{c['claim']} | **{c['verdict']}** "
                      f"| {c['pairs']} ({c['groups']}) | {c['holds_in']}/{c['pairs']} | "
                      f"{c['mean_difference']:+.2f} [{lo:+.2f}, {hi:+.2f}] | "
                      f"{c['rank_biserial']:+.2f} | {c['wilcoxon_p']:.3g} | "
                      f"{c['sign_test_p']:.3g} |")
-    for features, c in complete.items():
+    for c in complete:
         per = "; ".join(f"{p}: {v['every_object_visited']}/{v['runs']} runs"
                         for p, v in c["per_policy"].items())
-        lines.append(f"| {features} | {UNTIL_COMPLETE} | {c['claim']} | **{c['verdict']}** | "
+        lines.append(f"| {c['features']} | {c['alpha_schedule'] or '-'} | {UNTIL_COMPLETE} "
+                     f"| {c['claim']} | **{c['verdict']}** | "
                      f"{c['runs']} runs | {c['every_object_visited']}/{c['runs']} ({per}) "
                      "| - | - | - | - |")
+    lines += agreement_markdown(agreement or [])
     if figures:
         lines += ["", "## Figures", "", "Per Table 2 column, each world's mean per policy "
-                  "and feature mode (fixed budgets): "
+                  "and feature mode (and step size, when there are several; fixed budgets): "
                   + ", ".join(f"[{f}]({f})" for f in figures) + "."]
     bad = [r for r in rows if r["status"] == "failed"]
     if bad:
         lines += ["", "## Failed runs", "", "Their errors are under failed/<key>/error.txt; "
                   "the next `roger sweep` of this spec tries them again.", ""]
         lines += [f"- {r['key']}: {r['policy']} seed {r['seed']} on {r['world_name']} "
-                  f"({r['features']}): {r['error']}" for r in bad]
+                  f"({r['features']}"
+                  + (f", step size {r['alpha_schedule']}" if r["alpha_schedule"] else "")
+                  + f"): {r['error']}" for r in bad]
     lines.append("")
     return "\n".join(lines)
