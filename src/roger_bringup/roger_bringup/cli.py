@@ -84,6 +84,14 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
                    help="record every topic to a rosbag2 bag: a new folder BAG holding "
                         "metadata.yaml and BAG_0.mcap (as ros2 bag record -s mcap -o BAG), "
                         "or, for a name ending in .mcap, that one MCAP file")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None,
+                   metavar="PORT",
+                   help="serve every topic live to Foxglove on a WebSocket server at PORT "
+                        "(default 8765; 0: a free port, printed): connect Foxglove to "
+                        "ws://127.0.0.1:PORT and load docs/foxglove-layout.json")
+    p.add_argument("--foxglove-host", default=None, metavar="ADDR",
+                   help="with --foxglove: the address it listens on (default 127.0.0.1, "
+                        "this machine only; the server has no authentication)")
 
 
 def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -97,7 +105,17 @@ def _run_options(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         image_size=args.image_size, realtime=args.realtime or None, gui=args.gui or None,
         params_file=args.params_file,
         domain_id=args.domain_id, timeout_s=args.timeout, progress=not args.quiet,
-        view=args.view, record=args.record)
+        view=args.view, record=args.record, **_foxglove_options(args))
+
+
+def _foxglove_options(args: argparse.Namespace) -> dict:
+    """``--foxglove [PORT]`` and ``--foxglove-host ADDR`` as RunOptions fields."""
+    from roger_common.errors import ConfigError
+    if args.foxglove is None:
+        if args.foxglove_host is not None:
+            raise ConfigError("--foxglove-host needs --foxglove [PORT]")
+        return {}
+    return {"foxglove": args.foxglove, "foxglove_host": args.foxglove_host or "127.0.0.1"}
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -112,6 +130,24 @@ def cmd_run(args: argparse.Namespace) -> int:
               f"(ground truth, judged afterwards): "
               f"{'yes' if metrics.get('every_object_visited') else 'no'} "
               f"({metrics['objects_visited']}/{metrics['objects_in_world']})")
+    return 0
+
+
+def cmd_chaos(args: argparse.Namespace) -> int:
+    """``roger chaos``: one long run with seeded faults, checked; writes DIR/chaos.json."""
+    from roger_bringup.chaos import CHAOS_FILE, ChaosOptions, run_chaos
+    result = run_chaos(ChaosOptions(world=args.world, cycles=args.cycles, faults=args.faults,
+                                    seed=args.seed, out=args.out, policy=args.policy,
+                                    domain_id=args.domain_id))
+    print(json.dumps({k: v for k, v in result.items() if k != "lost_store_details"},
+                     indent=2))
+    if not result["ok"]:
+        for line in result["failed"]:
+            print(f"roger chaos: check failed: {line}", file=sys.stderr)
+        print(f"roger chaos: {len(result['failed'])} checks failed; see "
+              f"{args.out / CHAOS_FILE}", file=sys.stderr)
+        return 1
+    print(f"roger chaos: every check passed; {args.out / CHAOS_FILE}", file=sys.stderr)
     return 0
 
 
@@ -388,6 +424,20 @@ def main(argv: list[str] | None = None) -> None:
     p_sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_workers_args(p_sweep, default=0, always_ray=True)
     p_sweep.set_defaults(func=cmd_sweep)
+    p_chaos = sub.add_parser("chaos", help="one long run with seeded faults (SIGKILL, SIGTERM, "
+                             "SIGSTOP of random nodes), checked (docs/reliability.md)")
+    p_chaos.add_argument("--world", type=Path, default=DEMO_WORLD, help="world file (YAML)")
+    p_chaos.add_argument("--cycles", type=int, default=1000, help="control cycles to run")
+    p_chaos.add_argument("--faults", type=int, default=50, help="faults to inject")
+    p_chaos.add_argument("--seed", type=int, default=1,
+                         help="seed of the fault schedule and of the run")
+    p_chaos.add_argument("--out", type=Path, default=Path("runs/chaos"),
+                         help="output folder (an earlier run's files there are replaced)")
+    p_chaos.add_argument("--policy", choices=("straightforward", "qlearning"),
+                         default="qlearning", help="attention policy; default %(default)s")
+    p_chaos.add_argument("--domain-id", type=int, default=None,
+                         help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or a random one)")
+    p_chaos.set_defaults(func=cmd_chaos)
     p_bench = sub.add_parser("bench", help="performance ratios of the graph (docs/performance.md)")
     p_bench.add_argument("--out", type=Path, default=Path("runs/bench"), help="output folder")
     p_bench.add_argument("--quick", action="store_true", help="a few cycles only (smoke test)")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -44,15 +45,30 @@ NODES: tuple[tuple[str, str], ...] = (
 
 
 def pick_domain_id() -> int:
-    """A domain id for this run: ROS_DOMAIN_ID if the user set one, else a random one.
+    """A domain id for this run: ROS_DOMAIN_ID if the user set one, else a random one that
+    no graph on this machine uses now (``domains_in_use``; any, if all are).
 
     Fast DDS on Linux accepts 0-101 (and 215-232) without port clashes; 0 is left to a
-    user's default graph.
+    user's default graph. A random draw alone once put a chaos run and another user's
+    ``roger run`` on one domain: each recorded the other's cycles (docs/reliability.md).
     """
     env = os.environ.get("ROS_DOMAIN_ID")
     if env:
         return int(env)
-    return random.SystemRandom().randint(1, 101)
+    taken = domains_in_use()
+    free = [d for d in range(1, 102) if d not in taken] or list(range(1, 102))
+    return random.SystemRandom().choice(free)
+
+
+def domains_in_use() -> set[int]:
+    """Domains whose Fast DDS port files (``fastrtps_port<N>``, N = 7400 + 250 * domain +
+    offset) are in /dev/shm now: a graph runs on them, or a killed one left them."""
+    out = set()
+    for name, _ in shm_files():
+        m = re.fullmatch(r"(?:sem\.)?fastrtps_port(\d+)(?:_el|_mutex)?", name)
+        if m is not None and int(m[1]) >= 7400:
+            out.add((int(m[1]) - 7400) // 250)
+    return out
 
 
 def ros_environment(out_dir: Path, domain_id: int, base: dict[str, str] | None = None
@@ -193,6 +209,8 @@ class Child:
     restarts: int = 0
     #: time.monotonic() of the last start.
     started_at: float = 0.0
+    #: Fast DDS participant id given to the running process (None: Fast DDS's own choice).
+    participant_id: int | None = None
 
     def start(self, env: dict[str, str]) -> None:
         """Start (or restart) the process, appending to its log."""
@@ -242,6 +260,9 @@ class Graph:
     deaths: list[dict[str, Any]] = field(default_factory=list)
     #: Participant ids already given to restarted nodes.
     participant_ids: list[int] = field(default_factory=list)
+    #: time.monotonic() at which each id of ``participant_ids`` was last given up (its
+    #: process died); ids in use are absent.
+    id_freed_at: dict[int, float] = field(default_factory=dict)
 
     def start(self) -> None:
         """Start every node process (except the ``external`` ones, started elsewhere)."""
@@ -282,7 +303,13 @@ class Graph:
         self.deaths.append({"node": child.name, "reason": reason or child.exit_reason(),
                             "shm_removed": len(removed)})
         child.restarts += 1
-        child.start(self.restart_env())
+        if child.participant_id is not None:
+            self.id_freed_at[child.participant_id] = time.monotonic()
+        env = self.restart_env()
+        child.participant_id = self.participant_ids[-1] if env is not self.env else None
+        if child.participant_id is not None:
+            self.id_freed_at.pop(child.participant_id, None)
+        child.start(env)
         return removed
 
     def restart_env(self) -> dict[str, str]:
@@ -306,11 +333,25 @@ class Graph:
                 continue
             if f"fastrtps_port{user_unicast_port(domain, pid)}" in taken:
                 continue  # another participant of this domain has (or had) that id
-            self.participant_ids.append(pid)
-            state = Path(self.env.get(STATE_DIR_ENV, self.out_dir / "state"))
-            path = profile_with_participant_id(pid, state / "dds" / f"participant_{pid}.xml")
-            return dict(self.env, **{PROFILE_ENV: str(path)})
-        return self.env  # every id of the range used: Fast DDS picks one
+            return self._with_participant_id(pid)
+        if self.id_freed_at:
+            # Every id of the range given (a run of many restarts, ``roger chaos``): the id
+            # whose process died longest ago, whose peers have had the most time to drop it.
+            # Left to Fast DDS the new node would take the lowest free id, often the one of
+            # the process it replaces, whose port is being raced for right now.
+            return self._with_participant_id(min(self.id_freed_at,
+                                                 key=self.id_freed_at.__getitem__))
+        return self.env  # every id of the range in use: Fast DDS picks one
+
+    def _with_participant_id(self, pid: int) -> dict[str, str]:
+        """The graph's environment with a profile that fixes the participant id to
+        ``pid`` (recorded as the last one given)."""
+        if pid in self.participant_ids:
+            self.participant_ids.remove(pid)
+        self.participant_ids.append(pid)
+        state = Path(self.env.get(STATE_DIR_ENV, self.out_dir / "state"))
+        path = profile_with_participant_id(pid, state / "dds" / f"participant_{pid}.xml")
+        return dict(self.env, **{PROFILE_ENV: str(path)})
 
     def stop(self, timeout: float = 10.0) -> list[str]:
         """SIGINT every child, wait, then SIGKILL what is left; clean what killed ones left.

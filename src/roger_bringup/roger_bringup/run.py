@@ -9,7 +9,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Protocol, TextIO
 
 import rclpy
 import yaml
@@ -57,6 +57,19 @@ CHECK_PERIOD_S = 0.05
 DONE_WAIT_S = 15.0
 
 
+class RunHook(Protocol):
+    """Something that runs beside the graph in the orchestrator's loop (``roger chaos``'s
+    fault injector): it gets the monitor node once (to subscribe to topics; its callbacks
+    run in the orchestrator's executor) and then every turn of the run loop."""
+
+    def attach(self, node: Any) -> None:
+        """Called once the monitor node exists, before any node process starts."""
+
+    def tick(self, graph: Graph, cycles: int, watch: HeartbeatWatch) -> None:
+        """Called every ``CHECK_PERIOD_S`` of the run loop, after the node checks, with the
+        cycles recorded so far."""
+
+
 class RunError(RogerError):
     """The run could not complete (a node failed to start, or the graph stalled)."""
 
@@ -90,10 +103,18 @@ class RunOptions:
     extra_params: dict[str, list[str]] = field(default_factory=dict)
     view: Path | None = None
     record: Path | None = None
+    #: Serve every topic on a Foxglove WebSocket server at this port (0: a free one);
+    #: None: no server. ``foxglove_host``: its address (loopback by default).
+    foxglove: int | None = None
+    foxglove_host: str = "127.0.0.1"
     external: tuple[str, ...] = ()
     #: Wall seconds without a heartbeat after which a node is killed and restarted; None
     #: turns the watch off (a node held at a debugger's breakpoint is not killed).
     hang_timeout_s: float | None = HANG_TIMEOUT_S
+    #: Restarts allowed per node before the run gives up (``roger chaos`` raises it).
+    max_restarts: int = MAX_RESTARTS
+    #: Called beside the run loop (``RunHook``); None: nothing.
+    hook: RunHook | None = None
 
     def budget(self) -> int:
         """Cycle budget handed to the attention node (with ``until_complete``, the most a
@@ -256,6 +277,12 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
     print(f"roger run: world {opt.world} ({len(world.objects)} objects), policy {opt.policy}, "
           f"seed {opt.seed}, ROS_DOMAIN_ID={domain_id}, output {out}\n"
           f"  watch with: {watch_command(env)}", file=log, flush=True)
+    foxglove_server = None
+    if opt.foxglove is not None:
+        # Started before the graph: a taken port stops the run before anything runs.
+        from roger_bringup.foxglove_node import FoxgloveServer, serving_line
+        foxglove_server = FoxgloveServer.start(opt.foxglove_host, opt.foxglove)
+        print(serving_line(foxglove_server, opt.foxglove), file=log, flush=True)
     # Taken before this process joins the graph, so that the files its own participant
     # creates count as the run's (removed at the end if a killed peer left them in use).
     shm_before = shm_files()
@@ -271,9 +298,17 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
     if opt.record is not None:
         from roger_bringup.recorder_node import McapRecorder
         observers.append(McapRecorder(opt.record.resolve(), meta=meta, context=context))
+    if foxglove_server is not None:
+        from rclpy.parameter import Parameter
+
+        from roger_bringup.foxglove_node import FoxgloveBridge
+        observers.append(FoxgloveBridge(foxglove_server, context=context, parameter_overrides=[
+            Parameter("use_sim_time", Parameter.Type.BOOL, True)]))
     for node in observers:
         executor.add_node(node)
     watch = HeartbeatWatch(monitor)
+    if opt.hook is not None:
+        opt.hook.attach(monitor)
     graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers), out),
                   shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
@@ -305,7 +340,9 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
                 continue
             next_check = time.monotonic() + CHECK_PERIOD_S
             _check_children(graph, restart=True, env=env, log=log, watch=watch,
-                            hang_s=opt.hang_timeout_s)
+                            hang_s=opt.hang_timeout_s, max_restarts=opt.max_restarts)
+            if opt.hook is not None:
+                opt.hook.tick(graph, monitor.cycles, watch)
             if monitor.cycles != last_cycles:
                 last_cycles, last_progress = monitor.cycles, time.monotonic()
             elif time.monotonic() - last_progress > STALL_S:
@@ -383,7 +420,8 @@ def watch_command(env: dict[str, str]) -> str:
 
 def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = None,
                     log: TextIO = sys.stdout, watch: HeartbeatWatch | None = None,
-                    hang_s: float | None = HANG_TIMEOUT_S) -> None:
+                    hang_s: float | None = HANG_TIMEOUT_S,
+                    max_restarts: int = MAX_RESTARTS) -> None:
     """Report a node process that died or hangs, clean what it left in /dev/shm, restart it.
 
     A node that exits with code 2 refused its setup (bad world file, parameter, memory
@@ -400,12 +438,12 @@ def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = No
         if code == SETUP_EXIT:
             tail = child.log_tail(1) or reason
             raise RunError(f"node {child.name} refused to start: {tail}")
-        if not restart or child.restarts >= MAX_RESTARTS:
+        if not restart or child.restarts >= max_restarts:
             raise RunError(f"node {child.name} died ({reason}) and was restarted "
                            f"{child.restarts} times already:\n{child.log_tail()}")
         removed = graph.restart(child)
         print(f"node {child.name} died ({reason}); removed {len(removed)} files it left in "
-              f"/dev/shm; restarted it ({child.restarts}/{MAX_RESTARTS})", file=log,
+              f"/dev/shm; restarted it ({child.restarts}/{max_restarts})", file=log,
               flush=True)
     if watch is None or hang_s is None or not restart:
         return
@@ -419,7 +457,7 @@ def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = No
             reason = f"unresponsive: no heartbeat {STARTUP_TIMEOUT_S:.0f} s after its start"
         else:
             continue
-        if child.restarts >= MAX_RESTARTS:
+        if child.restarts >= max_restarts:
             raise RunError(f"node {child.name} {reason} and was restarted {child.restarts} "
                            f"times already:\n{child.log_tail()}")
         pid = child.proc.pid
@@ -427,7 +465,7 @@ def _check_children(graph: Graph, restart: bool, env: dict[str, str] | None = No
         watch.forget(pid)
         print(f"node {child.name} {reason} (no heartbeat on /diagnostics); killed it; "
               f"removed {len(removed)} files it left in /dev/shm; restarted it "
-              f"({child.restarts}/{MAX_RESTARTS})", file=log, flush=True)
+              f"({child.restarts}/{max_restarts})", file=log, flush=True)
 
 
-__all__ = ["RunError", "RunOptions", "StopRequested", "run_graph"]
+__all__ = ["RunError", "RunHook", "RunOptions", "StopRequested", "run_graph"]
