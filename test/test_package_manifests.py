@@ -21,7 +21,8 @@ ROSDEP_KEYS: dict[str, str] = {
     "numpy": "python3-numpy", "cv2": "python3-opencv", "yaml": "python3-yaml",
     "torch": "python3-torch", "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
     "pybullet": "python3-pybullet-pip", "gymnasium": "python3-gymnasium-pip",
-    "mcap": "python3-mcap-pip", "rich": "python3-rich", "ray": "python3-ray-pip"}
+    "mcap": "python3-mcap-pip", "rich": "python3-rich", "ray": "python3-ray-pip",
+    "foxglove": "python3-foxglove-sdk-pip"}
 #: Imported by name at run time (importlib), so invisible to ``ast``.
 DYNAMIC: dict[str, set[str]] = {
     "roger_bringup": {"rosgraph_msgs", "sensor_msgs", "roger_interfaces", "std_msgs", "tf2_msgs",
