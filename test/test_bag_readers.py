@@ -36,6 +36,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 from conftest import REPO, WORLDS
+from js_packages import ensure_js_packages
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -115,16 +116,7 @@ def recorded(tmp_path_factory):
 @pytest.fixture(scope="module")
 def foxglove():
     """``node decode_bag.mjs`` with test/js's locked packages (npm ci when missing)."""
-    lock, installed = JS / "package-lock.json", JS / "node_modules" / ".package-lock.json"
-    if not installed.exists() or installed.stat().st_mtime < lock.stat().st_mtime:
-        try:
-            proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=JS,
-                                  capture_output=True, text=True, timeout=600)
-        except FileNotFoundError:
-            pytest.fail("npm is not installed: Node.js 20 with npm is needed for "
-                        "Foxglove's readers (see README, Setup)")
-        if proc.returncode != 0:
-            pytest.fail(f"npm ci in {JS} failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
+    ensure_js_packages("Foxglove's readers")
 
     def decode(path, *flags):
         proc = subprocess.run(["node", str(JS / "decode_bag.mjs"), str(path), *flags],

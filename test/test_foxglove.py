@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO, WORLDS
+from js_packages import ensure_js_packages
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from test_e2e_run import descendants
 
@@ -53,16 +54,7 @@ START_S, CLIENT_S = 90, 90
 def node_client():
     """``node foxglove_client.mjs`` with test/js's locked packages (npm ci when missing or
     older than the lock, as test_bag_readers does)."""
-    lock, installed = JS / "package-lock.json", JS / "node_modules" / ".package-lock.json"
-    if not installed.exists() or installed.stat().st_mtime < lock.stat().st_mtime:
-        try:
-            proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=JS,
-                                  capture_output=True, text=True, timeout=600)
-        except FileNotFoundError:
-            pytest.fail("npm is not installed: Node.js 20 with npm is needed for "
-                        "Foxglove's WebSocket client (see README, Setup)")
-        if proc.returncode != 0:
-            pytest.fail(f"npm ci in {JS} failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
+    ensure_js_packages("Foxglove's WebSocket client")
 
     def connect(url: str, *topics: str) -> dict:
         proc = subprocess.run(["node", str(JS / "foxglove_client.mjs"), url, str(CLIENT_S),
