@@ -27,7 +27,7 @@ from roger_attention.session import (
     SendRequest,
 )
 from roger_common.errors import RogerError
-from roger_common.types import Action
+from roger_common.types import Action, MatchOutcome, MatchResult, MemoryOp, MemoryRequest
 
 
 class Clock:
@@ -184,6 +184,90 @@ def test_a_restarted_session_goes_on_where_the_crashed_one_stopped(tmp_path) -> 
     assert second.ctl.spatial_map.all_mapped()
     cycle_goals = [g.goal.goal_id for g in t1.goals + t2.goals if not is_look(g.goal.goal_id)]
     assert len(cycle_goals) == len(set(cycle_goals))
+
+
+class OnceMemory(FakeMemory):
+    """FakeMemory that answers a STORE of features it already holds with their address,
+    as the memory node does (``find_exact``)."""
+
+    def handle(self, req: MemoryRequest) -> MatchResult:
+        if req.op is MemoryOp.STORE:
+            for address, (f, k) in enumerate(self.stored):
+                if np.array_equal(f, req.features) and np.array_equal(k, req.known):
+                    self.requests.append(req)
+                    return MatchResult(MatchOutcome.NEW, address, 1.0)
+        return super().handle(req)
+
+
+def run_until_a_store_is_out(t: Transport, skip: int = 0) -> SendRequest:
+    """Drive ``t`` until a STORE is the next thing to answer (after ``skip`` others)."""
+    t.take(t.session.start())
+    while True:
+        head = t.pending[0]
+        if isinstance(head, SendRequest) and head.request.op is MemoryOp.STORE:
+            if skip == 0:
+                return head
+            skip -= 1
+        assert t.answer()
+
+
+@pytest.mark.parametrize("memory_made_it", [True, False])
+def test_a_store_in_flight_when_the_session_died_is_finished_on_resume(
+        tmp_path, memory_made_it) -> None:
+    world, memory = FakeWorld(three_objects()), OnceMemory()
+    first = make_session(tmp_path, max_cycles=40)
+    t1 = Transport(first, world, memory)
+    store = run_until_a_store_is_out(t1, skip=1)
+    cycles_before = first.ctl.counters.cycles
+    if memory_made_it:  # the memory stored it; its reply never reached the dead session
+        memory.handle(store.request)
+    stored_before = len(memory.stored)
+    # "Crash": a new controller and session from the file written before the STORE went out.
+    second = make_session(tmp_path, max_cycles=40)
+    assert second.resumed and second.ctl.counters.cycles == cycles_before
+    t2 = Transport(second, world, memory)
+    t2.sim_time = t1.sim_time
+    out = second.start()
+    assert len(out) == 1 and isinstance(out[0], SendRequest)
+    again = out[0].request
+    assert again.op is MemoryOp.STORE and again.request_id == store.request.request_id
+    np.testing.assert_array_equal(again.features, store.request.features)
+    t2.take(out)
+    assert t2.answer()
+    # The stored cycle is reported first, with the address the memory gave it, once.
+    first_report = t2.reports[0].record
+    assert first_report.cycle == cycles_before + 1 and first_report.outcome == "stored"
+    assert len(memory.stored) == max(stored_before, 1 + stored_before - memory_made_it)
+    assert first_report.address == len(memory.stored) - 1
+    assert first_report.counters.new_objects == first.ctl.counters.new_objects + 1
+    while t2.answer():
+        pass
+    # Every object the memory holds is recorded as stored exactly once, in order.
+    reports = {r.record.cycle: r.record for r in t1.reports + t2.reports}
+    assert sorted(reports) == list(range(1, 41))
+    stored_at = [r.address for _, r in sorted(reports.items()) if r.outcome == "stored"]
+    assert sorted(stored_at) == list(range(len(memory.stored)))
+    check_table2(reports[40].counters)
+    # The place was mapped with that address after the scan: not stored a second time.
+    assert first_report.address in [e.address for e in second.ctl.spatial_map if e.mapped]
+    # The Q update of the finished cycle is in the table: its TD error was recorded.
+    assert first_report.td_error is not None
+
+
+def test_a_second_crash_before_the_store_is_answered_keeps_it_in_flight(tmp_path) -> None:
+    world, memory = FakeWorld(three_objects()), OnceMemory()
+    t1 = Transport(make_session(tmp_path, max_cycles=40), world, memory)
+    store = run_until_a_store_is_out(t1)
+    second = make_session(tmp_path, max_cycles=40)
+    assert second.ctl.store_in_flight is not None
+    third = make_session(tmp_path, max_cycles=40)  # died again before anything
+    request = third.ctl.store_in_flight
+    assert request is not None and request.request_id == store.request.request_id
+    # Ids go on after the store's own: nothing later reuses it.
+    t3 = Transport(third, world, memory)
+    t3.run()
+    ids = [r.request_id for r in memory.requests]
+    assert ids.count(store.request.request_id) == 1 and ids == sorted(ids)
 
 
 def test_a_restarted_session_keeps_what_the_q_learner_learnt(tmp_path) -> None:

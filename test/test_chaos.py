@@ -299,13 +299,7 @@ def test_short_chaos_run_of_the_graph(no_leaks, tmp_path, ros_domain):
     assert result["duplicate_cycles"] == 0 and result["duplicate_stores"] == 0, result
     assert result["table2_identities"], result
     assert result["leftover_processes"] == 0 and result["leftover_shm"] == 0, result
-    # A STORE acknowledged just before the attention node died may be missing from
-    # cycles.csv (docs/reliability.md, "A store in flight is kept, not counted"): the one
-    # check that may fail here, and then the exit status says so.
-    others = [line for line in result["failed"] if not line.startswith("lost_stores")]
-    assert others == [], result["failed"]
-    assert result["lost_stores"] <= result["faults_in_map_update"], result
-    assert all(d["missing_from"] == ["cycles.csv"] for d in result["lost_store_details"])
-    assert proc.returncode == (0 if result["ok"] else 1), proc.stderr[-3000:]
-    if not result["ok"]:
-        assert "check failed: lost_stores" in proc.stderr
+    # Every check holds, stores in flight at a kill included (written ahead, finished on
+    # resume: docs/reliability.md).
+    assert result["failed"] == [] and result["lost_stores"] == 0, result["failed"]
+    assert result["ok"] and proc.returncode == 0, proc.stderr[-3000:]

@@ -20,7 +20,11 @@ then runs each cycle as::
 
 An idle plan (nothing in the map to attend to) queues a new scan: the driver looks again
 (``next_look``) before the next ``begin_cycle``. ``export_state`` and ``restore_state``
-carry what a restarted driver needs to go on where a crashed one stopped.
+carry what a restarted driver needs to go on where a crashed one stopped. Exported while a
+map update's STORE is out (``begin_cycle`` done, ``end_cycle`` not), the state also holds
+that store: a restarted driver sends it again (``store_in_flight``; the memory answers a
+store it already made with the same address) and closes its cycle with ``finish_store``,
+so no store the memory made goes unrecorded.
 
 Nothing here blocks or does I/O; the controller only keeps the state between the calls.
 """
@@ -228,6 +232,7 @@ class AttentionController:
         self._ever_mapped: dict[int, Position] = {}
         self._gone_places: list[Position] = []
         self._since_new = 0  # counted cycles since the last new representation was stored
+        self._restored_store: dict[str, Any] | None = None  # restore_state's store in flight
 
     @property
     def state(self) -> State:
@@ -301,7 +306,28 @@ class AttentionController:
                        for p, a in self.spatial_map.mapped_places()],
             "mapped_before": [list(p) for p in self._places_mapped_before()],
             "cycles_since_new": self._since_new,
+            "store_in_flight": self._store_in_flight(),
         }
+
+    def _store_in_flight(self) -> dict[str, Any] | None:
+        """The open cycle's STORE and what closing it needs (JSON-ready), or None."""
+        if self._restored_store is not None:
+            return self._restored_store
+        pending = self._pending
+        if pending is None or pending.plan.memory_request is None:
+            return None
+        plan, request = pending.plan, pending.plan.memory_request
+        entry = self.spatial_map.get(plan.entry_id)
+        if entry is None:
+            return None
+        after = transition(pending.state, Action.MAP_UPDATE, None, True)
+        allowed = allowed_actions(after, self._visual_left, self._haptic_left,
+                                  has_focus=self.focus is not None)
+        return {"request_id": request.request_id, "features": request.features.tolist(),
+                "known": request.known.tolist(), "focus_id": request.focus_id,
+                "cycle": plan.cycle, "state": pending.state.bits, "entry_id": plan.entry_id,
+                "position": list(entry.position), "bbox": list(_bbox(entry.roi.bbox)),
+                "allowed_after": [int(a) for a in allowed]}
 
     def restore_state(self, state: dict[str, Any]) -> None:
         """Go on from an ``export_state`` of a controller that stopped (a crash).
@@ -328,6 +354,15 @@ class AttentionController:
                 raise ValueError("a mapped place is not an (x, y, z) position")
             before = [as_point(p) for p in state.get("mapped_before", [])]
             since_new = int(state.get("cycles_since_new", 0))
+            store = state.get("store_in_flight")
+            if store is not None:
+                store = dict(store)
+                store["state"] = State.from_bits(str(store["state"])).bits
+                store["request_id"], store["cycle"] = int(store["request_id"]), \
+                    int(store["cycle"])
+                if len(store["position"]) != 3 or len(store["features"]) != len(
+                        store["known"]):
+                    raise ValueError("the store in flight is malformed")
             self.policy.load_state_dict(state["policy_state"])
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"corrupt attention state ({exc!r})") from None
@@ -338,6 +373,47 @@ class AttentionController:
         self._gone_places = before
         self._ever_mapped = {}
         self._since_new = since_new
+        self._restored_store = store
+
+    @property
+    def store_in_flight(self) -> MemoryRequest | None:
+        """The map update's STORE that the stopped controller had sent when it stopped
+        (restored by ``restore_state``): send it again, then close its cycle with
+        ``finish_store``. None when there is none."""
+        s = self._restored_store
+        if s is None:
+            return None
+        return MemoryRequest(s["request_id"], MemoryOp.STORE,
+                             np.asarray(s["features"], dtype=np.float64),
+                             np.asarray(s["known"], dtype=bool), focus_id=int(s["focus_id"]))
+
+    def finish_store(self, result: MatchResult | None) -> CycleRecord:
+        """Close the cycle of ``store_in_flight`` with the memory's answer, as ``end_cycle``
+        would have: counters, reward and Q update, and the place mapped with the stored
+        address (at the end of the next scan, with the other restored places).
+
+        Raises:
+            RuntimeError: No store is in flight.
+        """
+        s, self._restored_store = self._restored_store, None
+        if s is None:
+            raise RuntimeError("finish_store called without a store in flight")
+        state = State.from_bits(s["state"])
+        after = transition(state, Action.MAP_UPDATE, None, True)
+        address = result.address if result is not None and result.address >= 0 else -1
+        self._count(Action.MAP_UPDATE, "stored")
+        r = reward(state, Action.MAP_UPDATE, after, self.config.rewards)
+        td = self.policy.update(state, Action.MAP_UPDATE, r, after, False,
+                                tuple(Action(int(a)) for a in s["allowed_after"]))
+        if td is not None:
+            self.td_errors.append(td)
+        position = as_point(s["position"])
+        self._restored_places.append((position, address))
+        return CycleRecord(
+            cycle=s["cycle"], state_before=state.bits, action=Action.MAP_UPDATE,
+            state_after=after.bits, reward=r, td_error=td, entry_id=int(s["entry_id"]),
+            position=position, bbox=_bbox(s["bbox"]), outcome="stored", address=address,
+            counters=dataclasses.replace(self.counters), goal_id=0)
 
     @property
     def cycles_since_new(self) -> int:

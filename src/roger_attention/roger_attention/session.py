@@ -15,6 +15,13 @@ the last cycle's report there atomically at the end of every cycle, before the r
 out. A restarted session restores them, scans again (the controller maps again what was
 mapped), re-sends the last report (the orchestrator's recorder drops a cycle number it
 already has) and goes on with the next cycle.
+
+A map update's STORE is written ahead: the session saves the state, with the store in it
+(``AttentionController.store_in_flight``), before the request goes out. A session restored
+from such a state sends that store again first, with its request id and features (the
+memory answers a store it already made with the same address, and makes one it never
+received), closes the stored cycle from the answer, reports it, and only then scans. So a
+kill between the memory's store and its reply loses nothing, and stores nothing twice.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ from roger_common.types import (
     EyePose,
     Goal,
     MatchResult,
+    MemoryOp,
     MemoryRequest,
     Roi,
     RunCounters,
@@ -141,11 +149,17 @@ class AttentionSession:
         self._last_sent: tuple[SendGoal | SendRequest, float] | None = None
         self._look_due: float | None = None
         self._last_report: Report | None = None
+        self._finishing: int | None = None  # request id of a restored store in flight
         self.resumed = self._load()
 
     # -- events --------------------------------------------------------------------------
     def start(self) -> list[Outgoing]:
-        """The peers are up: the first look of the initial scan."""
+        """The peers are up: the first look of the initial scan (after a restart, the
+        store in flight first, if there was one)."""
+        store = self.ctl.store_in_flight
+        if store is not None:
+            self._finishing = store.request_id
+            return self._send_request(store)
         return self._look()
 
     def tick(self) -> list[Outgoing]:
@@ -200,6 +214,8 @@ class AttentionSession:
             return []
         self._awaited_request, self._last_sent = None, None
         self._memory_size = memory_size
+        if self._finishing == request_id:
+            return self._finish_store(result)
         return self._end_cycle(result)
 
     # -- the cycle -----------------------------------------------------------------------
@@ -215,6 +231,8 @@ class AttentionSession:
 
     def _send_request(self, request: MemoryRequest) -> list[Outgoing]:
         self._awaited_request = request.request_id
+        if request.op is MemoryOp.STORE:
+            self._save()  # written ahead: a restart sends it again and closes its cycle
         out = SendRequest(request, self._sim_now)
         self._last_sent = (out, self._clock())
         return [out]
@@ -254,6 +272,17 @@ class AttentionSession:
             policy.save(self.qtable_path, durable=False)  # fsynced when the node ends
         return [self._last_report, self._map(self._sim_now), self._metrics(False),
                 *self._next_cycle()]
+
+    def _finish_store(self, result: MatchResult | None) -> list[Outgoing]:
+        """The restored store in flight was answered: report its cycle, then scan."""
+        self._finishing = None
+        record = self.ctl.finish_store(result)
+        self._last_report = Report(record, self._sim_now, 0.0)
+        self._save()
+        policy = self.ctl.policy
+        if self.config.learn and self.qtable_path is not None and policy.learns:
+            policy.save(self.qtable_path, durable=False)
+        return [self._last_report, self._metrics(False), *self._look()]
 
     def _map(self, stamp: float) -> PublishMap:
         self._revision += 1
