@@ -29,6 +29,7 @@ from roger_attention.controller import AttentionController
 from roger_attention.markers import MapView
 from roger_attention.policies import make_policy
 from roger_common import conversions as common
+from roger_common import topics
 from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
@@ -78,23 +79,23 @@ class AttentionNode(Node):
         if self.session.resumed:
             self.get_logger().warn(f"resuming after cycle {self.ctl.counters.cycles} from "
                                    f"{self.session.state_path}")
-        self.pub_goal = self.create_publisher(ActionGoal, "/roger/goal", RELIABLE)
-        self.pub_request = self.create_publisher(MemoryRequestMsg, "/roger/memory/request",
+        self.pub_goal = self.create_publisher(ActionGoal, topics.GOAL, RELIABLE)
+        self.pub_request = self.create_publisher(MemoryRequestMsg, topics.MEMORY_REQUEST,
                                                  RELIABLE)
-        self.pub_state = self.create_publisher(PolicyState, "/roger/policy_state", REPORTS)
-        self.pub_metrics = self.create_publisher(Metrics, "/roger/metrics", REPORTS)
-        self.pub_map = self.create_publisher(SpatialMap, "/roger/spatial_map", LATCHED)
+        self.pub_state = self.create_publisher(PolicyState, topics.POLICY_STATE, REPORTS)
+        self.pub_metrics = self.create_publisher(Metrics, topics.METRICS, REPORTS)
+        self.pub_map = self.create_publisher(SpatialMap, topics.SPATIAL_MAP, LATCHED)
         # The map as RViz and Foxglove draw it (roger_attention.markers).
         self.map_view = MapView()
-        self.pub_markers = self.create_publisher(MarkerArray, "/roger/spatial_map/markers",
+        self.pub_markers = self.create_publisher(MarkerArray, topics.MAP_MARKERS,
                                                  LATCHED)
         # Geometry and camera first: when a frame's geometry and its ROI array are taken in
         # the same executor pass, callbacks run in subscription order.
-        self.create_subscription(StereoGeometry, "/roger/stereo_geometry", self.on_geometry,
+        self.create_subscription(StereoGeometry, topics.STEREO_GEOMETRY, self.on_geometry,
                                  IMAGES)
-        self.create_subscription(CameraInfo, "/roger/left/camera_info", self.on_info, IMAGES)
-        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
-        self.create_subscription(MemoryResult, "/roger/memory/result", self.on_result, RELIABLE)
+        self.create_subscription(CameraInfo, topics.LEFT_INFO, self.on_info, IMAGES)
+        self.create_subscription(RoiArray, topics.ROIS, self.on_rois, RELIABLE)
+        self.create_subscription(MemoryResult, topics.MEMORY_RESULT, self.on_result, RELIABLE)
         self._geometry: dict[tuple[int, int], EyePose] = {}
         self._camera: CameraModel | None = None
         self._started = self._done_logged = False
@@ -112,8 +113,8 @@ class AttentionNode(Node):
         """True once simulator, perception and memory are matched on our topics."""
         return (self.pub_goal.get_subscription_count() > 0
                 and self.pub_request.get_subscription_count() > 0
-                and self.count_publishers("/roger/rois") > 0
-                and self.count_publishers("/roger/memory/result") > 0
+                and self.count_publishers(topics.ROIS) > 0
+                and self.count_publishers(topics.MEMORY_RESULT) > 0
                 and self.pub_state.get_subscription_count()
                 >= self.session.config.wait_for_observers)
 
@@ -139,7 +140,7 @@ class AttentionNode(Node):
         try:
             rois: Sequence[Roi] = common.msg_to_rois(msg)
         except MessageError as exc:
-            self.bad_input.drop("/roger/rois", exc)
+            self.bad_input.drop(topics.ROIS, exc)
             return
         stamp = msg.header.stamp
         self._emit(self.session.on_rois(int(msg.goal_id), rois, common.time_to_seconds(stamp),
@@ -152,7 +153,7 @@ class AttentionNode(Node):
         try:
             result: MatchResult = common.msg_to_result(msg)
         except MessageError as exc:
-            self.bad_input.drop("/roger/memory/result", exc)
+            self.bad_input.drop(topics.MEMORY_RESULT, exc)
             return
         self._emit(self.session.on_result(int(msg.request_id), result, int(msg.memory_size)))
 
@@ -183,7 +184,7 @@ class AttentionNode(Node):
         try:
             pose = common.poses_from_geometry(msg)[0]
         except MessageError as exc:
-            self.bad_input.drop("/roger/stereo_geometry", exc)
+            self.bad_input.drop(topics.STEREO_GEOMETRY, exc)
             return
         self._geometry[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = pose
         while len(self._geometry) > 16:
@@ -194,7 +195,7 @@ class AttentionNode(Node):
         try:
             self._camera = common.camera_from_info(msg)
         except MessageError as exc:
-            self.bad_input.drop("/roger/left/camera_info", exc)
+            self.bad_input.drop(topics.LEFT_INFO, exc)
 
     def destroy_node(self) -> None:
         """Flush the per-cycle files (resume state, Q-table) to the disk, then go."""

@@ -29,6 +29,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from roger_bringup.orchestrator import NODES, Child, Graph, shm_files, shm_holders
+from roger_common import topics
 from roger_common.errors import ConfigError
 
 #: Names of the graph's nodes, the targets of the schedule.
@@ -162,7 +163,7 @@ class FaultInjector:
         """Listen to the memory requests (for map-update faults)."""
         from roger_common.ros_node import RELIABLE
         from roger_interfaces.msg import MemoryRequest
-        node.create_subscription(MemoryRequest, "/roger/memory/request", self._on_request,
+        node.create_subscription(MemoryRequest, topics.MEMORY_REQUEST, self._on_request,
                                  RELIABLE)
 
     def _on_request(self, msg: Any) -> None:

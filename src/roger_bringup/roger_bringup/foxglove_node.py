@@ -55,6 +55,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from roger_bringup import msgdefs
 from roger_bringup.topics import TOPICS, Topic
+from roger_common import topics
 from roger_common.dds import apply_dds_defaults
 from roger_common.errors import RogerError
 
@@ -68,7 +69,7 @@ DISCOVERY_PERIOD_S = 0.5
 DEPTH = 10
 #: Hosts that only this machine reaches.
 LOOPBACK = frozenset({"127.0.0.1", "localhost", "::1"})
-CLOCK_TOPIC = "/clock"
+CLOCK_TOPIC = topics.CLOCK
 
 
 class FoxgloveError(RogerError):

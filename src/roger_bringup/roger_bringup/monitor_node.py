@@ -16,6 +16,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from roger_bringup.monitor_logic import RunMonitor
+from roger_common import topics
 from roger_common.ros_node import LABELS, LATCHED, REPORTS
 from roger_experiments.evaluation import RunRecorder
 from roger_interfaces.msg import (
@@ -40,16 +41,16 @@ class MonitorNode(Node):
         super().__init__("roger_monitor", **kwargs)
         self.monitor = RunMonitor(recorder)
         self.recorder = recorder
-        self.create_subscription(Metrics, "/roger/metrics", self.monitor.on_metrics, REPORTS)
-        self.create_subscription(GroundTruth, "/roger/ground_truth", self.monitor.on_truth,
+        self.create_subscription(Metrics, topics.METRICS, self.monitor.on_metrics, REPORTS)
+        self.create_subscription(GroundTruth, topics.GROUND_TRUTH, self.monitor.on_truth,
                                  LATCHED)
         # The attention node starts once it sees the /roger/policy_state subscription, so
         # that one comes only once these hear the simulator: the first frames' labels and
         # the first goals' convergence events (volatile) would be lost otherwise.
         self._gated = [
-            self.create_subscription(GroundTruthLabels, "/roger/ground_truth/labels",
+            self.create_subscription(GroundTruthLabels, topics.GROUND_TRUTH_LABELS,
                                      self.monitor.on_labels, LABELS),
-            self.create_subscription(ConvergenceEvent, "/roger/convergence",
+            self.create_subscription(ConvergenceEvent, topics.CONVERGENCE,
                                      self.monitor.on_convergence, REPORTS)]
         self._gate_deadline = time.monotonic() + GATE_TIMEOUT_S
         self._gate_timer = self.create_timer(0.02, self._open_gate,
@@ -67,7 +68,7 @@ class MonitorNode(Node):
                                       f"{', '.join(unheard)}; recording cycles anyway")
         self._gate_timer.cancel()
         self.destroy_timer(self._gate_timer)
-        self.create_subscription(PolicyState, "/roger/policy_state", self.monitor.on_state,
+        self.create_subscription(PolicyState, topics.POLICY_STATE, self.monitor.on_state,
                                  REPORTS)
 
     @property

@@ -47,6 +47,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from roger_bringup import msgdefs
+from roger_common import topics
 from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.errors import RogerError
 from roger_experiments.evaluation import RunRecorder
@@ -64,9 +65,9 @@ INFINITE = (9223372036, 854775807)
 #: starting_time of a bag without messages (rosbag2 starts from the largest time point).
 _NO_START = 2**63 - 1
 #: Topics replay reads.
-REPLAY_TOPICS: tuple[str, ...] = ("/roger/ground_truth", "/roger/ground_truth/labels",
-                                  "/roger/convergence", "/roger/policy_state",
-                                  "/roger/metrics")
+REPLAY_TOPICS: tuple[str, ...] = (topics.GROUND_TRUTH, topics.GROUND_TRUTH_LABELS,
+                                  topics.CONVERGENCE, topics.POLICY_STATE,
+                                  topics.METRICS)
 
 
 class RecordingError(RogerError):
@@ -591,15 +592,15 @@ def replay(bag: Path, out_dir: Path) -> dict[str, Any]:
     recorder.scorer.address_category = {
         int(a): (tuple(c) if c is not None else None) for a, c in known.items()}
     monitor = RunMonitor(recorder)
-    handlers = {"/roger/ground_truth": monitor.on_truth,
-                "/roger/ground_truth/labels": monitor.on_labels,
-                "/roger/convergence": monitor.on_convergence,
-                "/roger/policy_state": monitor.on_state, "/roger/metrics": monitor.on_metrics}
+    handlers = {topics.GROUND_TRUTH: monitor.on_truth,
+                topics.GROUND_TRUTH_LABELS: monitor.on_labels,
+                topics.CONVERGENCE: monitor.on_convergence,
+                topics.POLICY_STATE: monitor.on_state, topics.METRICS: monitor.on_metrics}
     policy = meta.get("policy")
     try:
         for topic, msg, _ in read_messages(bag, REPLAY_TOPICS):
             handlers[topic](msg)
-            if topic == "/roger/metrics" and not policy:
+            if topic == topics.METRICS and not policy:
                 policy = msg.policy
     finally:
         monitor.flush(force=True)  # states whose labels were not recorded

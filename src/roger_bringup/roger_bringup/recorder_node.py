@@ -30,6 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from roger_bringup.record import RUN_METADATA, BagWriter, OfferedQos
 from roger_bringup.topics import TOPICS, Topic
+from roger_common import topics
 from roger_common.dds import apply_dds_defaults
 from roger_common.errors import RogerError
 
@@ -37,7 +38,7 @@ from roger_common.errors import RogerError
 RECORD_DEPTH = 100
 #: The attention node starts its first cycle once ``wait_for_observers`` subscriptions
 #: listen here (the orchestrator counts the recorder among them).
-GATE_TOPIC = "/roger/policy_state"
+GATE_TOPIC = topics.POLICY_STATE
 #: Publishers (``Topic.publisher``) that every run has: their topics are heard before the
 #: gate opens.
 GRAPH_PUBLISHERS = frozenset({"sim", "perception", "memory", "attention"})

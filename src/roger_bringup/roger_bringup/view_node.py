@@ -25,6 +25,7 @@ from sensor_msgs.msg import Image
 
 from roger_bringup.conversions import map_interests, view_to_msg
 from roger_bringup.monitor_logic import COUNTER_FIELDS
+from roger_common import topics
 from roger_common.conversions import image_to_array, msg_to_rois
 from roger_common.errors import ConfigError, MessageError
 from roger_common.ros_node import IMAGES, LATCHED, RELIABLE, REPORTS, declare_config, spin_node
@@ -90,15 +91,15 @@ class ViewNode(Node):
         self._entries: list[tuple[tuple[float, float, float], float]] = []
         self._counters: dict[str, int] = {}
         self._pending: PolicyState | None = None
-        self.pub_view = self.create_publisher(Image, "/roger/view", IMAGES)
-        self.create_subscription(Image, "/roger/left/image_raw",
+        self.pub_view = self.create_publisher(Image, topics.VIEW, IMAGES)
+        self.create_subscription(Image, topics.LEFT_IMAGE,
                                  lambda m: self._part(m, "left"), IMAGES)
-        self.create_subscription(Image, "/roger/right/image_raw",
+        self.create_subscription(Image, topics.RIGHT_IMAGE,
                                  lambda m: self._part(m, "right"), IMAGES)
-        self.create_subscription(RoiArray, "/roger/rois", self.on_rois, RELIABLE)
-        self.create_subscription(PolicyState, "/roger/policy_state", self.on_state, REPORTS)
-        self.create_subscription(Metrics, "/roger/metrics", self.on_metrics, REPORTS)
-        self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
+        self.create_subscription(RoiArray, topics.ROIS, self.on_rois, RELIABLE)
+        self.create_subscription(PolicyState, topics.POLICY_STATE, self.on_state, REPORTS)
+        self.create_subscription(Metrics, topics.METRICS, self.on_metrics, REPORTS)
+        self.create_subscription(SpatialMap, topics.SPATIAL_MAP, self.on_map, LATCHED)
 
     def _slot(self, stamp: Any) -> dict[str, Any]:
         key = (int(stamp.sec), int(stamp.nanosec))

@@ -22,6 +22,8 @@ import time
 from collections.abc import Callable, Hashable
 from typing import Any
 
+from roger_common import topics
+
 #: Exit status of a node that refused its setup (bad world, parameter or memory file):
 #: restarting it would fail again, so the orchestrator ends the run with its one line.
 SETUP_EXIT = 2
@@ -30,7 +32,7 @@ SETUP_EXIT = 2
 CRASH_EXIT = 70
 #: Topic of the heartbeat (the standard diagnostics topic, so ``ros2 topic echo
 #: /diagnostics`` and rqt_robot_monitor show it).
-HEARTBEAT_TOPIC = "/diagnostics"
+HEARTBEAT_TOPIC = topics.DIAGNOSTICS
 #: Wall seconds between two beats of a node.
 HEARTBEAT_PERIOD_S = 0.5
 #: Suffix of the DiagnosticStatus name of a heartbeat: ``"roger_sim: heartbeat"``.

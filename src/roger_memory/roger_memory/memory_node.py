@@ -21,6 +21,7 @@ import torch
 from rclpy.node import Node
 
 from roger_common import conversions as conv
+from roger_common import topics
 from roger_common.atomic import sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError
@@ -32,7 +33,7 @@ from roger_memory.memory import AssociativeMemory
 
 #: Replies kept for re-sent requests.
 REPLIES_KEPT = 32
-REQUEST_TOPIC = "/roger/memory/request"
+REQUEST_TOPIC = topics.MEMORY_REQUEST
 
 
 class MemoryNode(Node):
@@ -56,8 +57,8 @@ class MemoryNode(Node):
             self.memory = AssociativeMemory(self.config, seed=seed)
         self._replies: OrderedDict[int, MemoryResult] = OrderedDict()
         self.bad_input = BadInput(self)
-        self.pub_result = self.create_publisher(MemoryResult, "/roger/memory/result", RELIABLE)
-        self.pub_learned = self.create_publisher(MemoryResult, "/roger/memory/learned", LATCHED)
+        self.pub_result = self.create_publisher(MemoryResult, topics.MEMORY_RESULT, RELIABLE)
+        self.pub_learned = self.create_publisher(MemoryResult, topics.MEMORY_LEARNED, LATCHED)
         self.create_subscription(MemoryRequest, REQUEST_TOPIC, self.on_request, RELIABLE)
 
     def on_request(self, msg: MemoryRequest) -> None:

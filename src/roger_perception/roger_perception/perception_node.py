@@ -14,6 +14,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from roger_common import conversions as common
+from roger_common import topics
 from roger_common.errors import MessageError
 from roger_common.ros_node import (
     IMAGES,
@@ -59,16 +60,16 @@ class PerceptionNode(Node):
         #: Complete pairs waiting for their haptic reading or map: (parts, since).
         self._ready: list[tuple[dict[str, Any], float]] = []
         self.bad_input = BadInput(self)
-        self.pub_rois = self.create_publisher(RoiArray, "/roger/rois", RELIABLE)
-        for kind, cls, topic in (("left", Image, "/roger/left/image_raw"),
-                                 ("right", Image, "/roger/right/image_raw"),
-                                 ("geometry", StereoGeometry, "/roger/stereo_geometry"),
-                                 ("info", CameraInfo, "/roger/left/camera_info"),
-                                 ("fovea", Image, "/roger/fovea/image_raw"),
-                                 ("fovea_info", CameraInfo, "/roger/fovea/camera_info")):
+        self.pub_rois = self.create_publisher(RoiArray, topics.ROIS, RELIABLE)
+        for kind, cls, topic in (("left", Image, topics.LEFT_IMAGE),
+                                 ("right", Image, topics.RIGHT_IMAGE),
+                                 ("geometry", StereoGeometry, topics.STEREO_GEOMETRY),
+                                 ("info", CameraInfo, topics.LEFT_INFO),
+                                 ("fovea", Image, topics.FOVEA_IMAGE),
+                                 ("fovea_info", CameraInfo, topics.FOVEA_INFO)):
             self.create_subscription(cls, topic, self._part_of(kind, topic), IMAGES)
-        self.create_subscription(HapticReadingMsg, "/roger/haptic", self.on_haptic, RELIABLE)
-        self.create_subscription(SpatialMap, "/roger/spatial_map", self.on_map, LATCHED)
+        self.create_subscription(HapticReadingMsg, topics.HAPTIC, self.on_haptic, RELIABLE)
+        self.create_subscription(SpatialMap, topics.SPATIAL_MAP, self.on_map, LATCHED)
         self.create_timer(0.5, self._flush_stale,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -77,7 +78,7 @@ class PerceptionNode(Node):
         try:
             reading: HapticReading | None = common.msg_to_haptic(msg)
         except MessageError as exc:
-            self.bad_input.drop("/roger/haptic", exc)
+            self.bad_input.drop(topics.HAPTIC, exc)
             reading = None  # the pair of this goal need not wait for it any longer
         self._haptic[int(msg.goal_id)] = reading
         while len(self._haptic) > MAX_PENDING:
@@ -150,7 +151,7 @@ class PerceptionNode(Node):
                 raise MessageError(f"stereo pair sizes {left.shape} / {right.shape} do not "
                                    f"match the camera ({camera.height}, {camera.width})")
         except MessageError as exc:
-            self.bad_input.drop("/roger/left/image_raw", f"stereo pair of goal "
+            self.bad_input.drop(topics.LEFT_IMAGE, f"stereo pair of goal "
                                 f"{geometry.goal_id}: {exc}; the attention node will ask for "
                                 "it again")
             return

@@ -24,6 +24,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from roger_common import conversions as common
+from roger_common import topics
 from roger_common.atomic import atomic_write_bytes, sync_file
 from roger_common.configdoc import take_live_fields
 from roger_common.errors import MessageError, RogerError
@@ -84,34 +85,34 @@ class SimNode(Node):
         self._wall_start = time.monotonic()
         self.bad_input = BadInput(self)
 
-        self.pub_clock = self.create_publisher(Clock, "/clock", RELIABLE)
-        self.pub_left = self.create_publisher(Image, "/roger/left/image_raw", IMAGES)
-        self.pub_right = self.create_publisher(Image, "/roger/right/image_raw", IMAGES)
-        self.pub_left_info = self.create_publisher(CameraInfo, "/roger/left/camera_info", IMAGES)
-        self.pub_right_info = self.create_publisher(CameraInfo, "/roger/right/camera_info",
+        self.pub_clock = self.create_publisher(Clock, topics.CLOCK, RELIABLE)
+        self.pub_left = self.create_publisher(Image, topics.LEFT_IMAGE, IMAGES)
+        self.pub_right = self.create_publisher(Image, topics.RIGHT_IMAGE, IMAGES)
+        self.pub_left_info = self.create_publisher(CameraInfo, topics.LEFT_INFO, IMAGES)
+        self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO,
                                                     IMAGES)
-        self.pub_fovea = self.create_publisher(Image, "/roger/fovea/image_raw", IMAGES)
-        self.pub_fovea_info = self.create_publisher(CameraInfo, "/roger/fovea/camera_info",
+        self.pub_fovea = self.create_publisher(Image, topics.FOVEA_IMAGE, IMAGES)
+        self.pub_fovea_info = self.create_publisher(CameraInfo, topics.FOVEA_INFO,
                                                     IMAGES)
-        self.pub_geometry = self.create_publisher(StereoGeometry, "/roger/stereo_geometry",
+        self.pub_geometry = self.create_publisher(StereoGeometry, topics.STEREO_GEOMETRY,
                                                   IMAGES)
-        self.pub_joints = self.create_publisher(JointState, "/roger/joint_states", RELIABLE)
-        self.pub_status = self.create_publisher(ControllerStatus, "/roger/controller_status",
+        self.pub_joints = self.create_publisher(JointState, topics.JOINT_STATES, RELIABLE)
+        self.pub_status = self.create_publisher(ControllerStatus, topics.CONTROLLER_STATUS,
                                                 RELIABLE)
-        self.pub_convergence = self.create_publisher(ConvergenceEvent, "/roger/convergence",
+        self.pub_convergence = self.create_publisher(ConvergenceEvent, topics.CONVERGENCE,
                                                      REPORTS)
-        self.pub_haptic = self.create_publisher(HapticReading, "/roger/haptic", RELIABLE)
-        self.pub_truth = self.create_publisher(GroundTruth, "/roger/ground_truth", LATCHED)
-        self.pub_labels = self.create_publisher(GroundTruthLabels, "/roger/ground_truth/labels",
+        self.pub_haptic = self.create_publisher(HapticReading, topics.HAPTIC, RELIABLE)
+        self.pub_truth = self.create_publisher(GroundTruth, topics.GROUND_TRUTH, LATCHED)
+        self.pub_labels = self.create_publisher(GroundTruthLabels, topics.GROUND_TRUTH_LABELS,
                                                 LABELS)
         # The robot model and its TF tree (roger_sim.urdf, roger_sim.tf_tree).
         self.description = describe_model(self.sim.robot)
-        self.pub_robot = self.create_publisher(String, "/robot_description", LATCHED)
-        self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", LATCHED)
-        self.pub_tf = self.create_publisher(TFMessage, "/tf", RELIABLE)
-        self.create_subscription(ActionGoal, "/roger/goal", self.on_goal, RELIABLE)
-        self.create_subscription(WorldEdit, "/roger/world_edit", self.on_world_edit, RELIABLE)
-        self.create_service(EditWorld, "/roger/edit_world", self.on_edit_world)
+        self.pub_robot = self.create_publisher(String, topics.ROBOT_DESCRIPTION, LATCHED)
+        self.pub_tf_static = self.create_publisher(TFMessage, topics.TF_STATIC, LATCHED)
+        self.pub_tf = self.create_publisher(TFMessage, topics.TF, RELIABLE)
+        self.create_subscription(ActionGoal, topics.GOAL, self.on_goal, RELIABLE)
+        self.create_subscription(WorldEdit, topics.WORLD_EDIT, self.on_world_edit, RELIABLE)
+        self.create_service(EditWorld, topics.EDIT_WORLD_SERVICE, self.on_edit_world)
         self._publish_clock()
         self._publish_ground_truth()
         self.pub_robot.publish(conv.robot_description_msg(to_urdf(self.description)))
@@ -127,7 +128,7 @@ class SimNode(Node):
         try:
             goal = common.msg_to_goal(msg)
         except MessageError as exc:
-            self.bad_input.drop("/roger/goal", exc)
+            self.bad_input.drop(topics.GOAL, exc)
             return
         # A goal id seen again is a retry after a lost reply: re-send, do not re-execute.
         # Goal 0 is the initial look, which may be asked for repeatedly.
@@ -260,7 +261,7 @@ class SimNode(Node):
         try:
             self.get_logger().info(self.apply_edit(msg))
         except (RogerError, KeyError, ValueError) as exc:
-            self.bad_input.drop("/roger/world_edit", _reason(exc))
+            self.bad_input.drop(topics.WORLD_EDIT, _reason(exc))
 
     def on_edit_world(self, request: EditWorld.Request,
                       response: EditWorld.Response) -> EditWorld.Response:
