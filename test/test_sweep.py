@@ -110,6 +110,23 @@ def test_shipped_claims_spec_parses():
     sweep.check_disjoint(spec)
 
 
+def test_every_shipped_spec_parses_and_the_schedules_spec_reuses_the_claims_cells():
+    folder = Path(__file__).resolve().parents[1] / "sweeps"
+    specs = {path.name: sweep.load_spec(path) for path in sorted(folder.glob("*.yaml"))}
+    assert {"claims.yaml", "schedules.yaml"} <= set(specs)
+    for spec in specs.values():
+        sweep.check_disjoint(spec)
+    assert specs["schedules.yaml"].alpha_schedules == ("constant", "visits")
+    claims = {c.key for c in sweep.cells(specs["claims.yaml"], "v")}
+    both = sweep.cells(specs["schedules.yaml"], "v")
+    visits = [c for c in both if c.alpha_schedule == "visits"]
+    others = {c.key for c in both if c.alpha_schedule != "visits"}
+    # Its constant and straightforward cells are the claims sweep's (run into one folder,
+    # only the visits cells run); the visits cells are new.
+    assert visits and others and others <= claims
+    assert not {c.key for c in visits} & claims
+
+
 def _old_key(data: object, version: str) -> str:
     """The cell and training key as sweep.digest made it before alpha_schedules existed,
     written out here so that a change of the formula shows."""
