@@ -49,3 +49,16 @@ def test_the_launcher_module_still_offers_the_table() -> None:
     from roger_bringup import topics as bringup_topics
 
     assert bringup_topics.TOPICS is topics.TOPICS
+
+
+def test_the_readme_lists_every_topic_as_the_table_has_it() -> None:
+    """README.md's node-graph table shows topics.TOPICS: every topic, with its type, QoS
+    and publisher, and nothing else."""
+    readme = (SRC.parent / "README.md").read_text(encoding="utf-8")
+    rows = {}
+    for line in readme.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 6 and cells[0].startswith("`/"):
+            rows[cells[0].strip("`")] = (cells[1].strip("`"), cells[2], cells[3].replace("`", ""))
+    table = {t.name: (t.type, t.qos, t.publisher) for t in topics.TOPICS}
+    assert rows == table
