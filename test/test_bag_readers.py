@@ -170,6 +170,15 @@ def test_foxglove_decodes_every_message(recorded, foxglove):
     assert {t: v["fingerprints"] for t, v in topics.items() if v["fingerprints"]} == reference
 
 
+def test_the_bag_holds_the_roi_outlines_of_both_retinas(recorded):
+    # One ImageMarker a retina for each ROI array (the readers above decode them too).
+    _, counts, reference = recorded
+    left, right = "/roger/left/roi_markers", "/roger/right/roi_markers"
+    assert counts[left] == counts[right] == counts["/roger/rois"] > 0, counts
+    assert any(fp["points"] for fp in reference[left]) and any(
+        fp["points"] for fp in reference[right])
+
+
 def test_foxglove_streams_a_killed_recording_up_to_the_cut(tmp_path, foxglove):
     bag = killed_recording(tmp_path)
     on_disk = message_counts(bag)

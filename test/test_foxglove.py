@@ -3,10 +3,11 @@
 An independent client, Foxglove's own (@foxglove/ws-protocol's FoxgloveClient run with node
 on test/js/foxglove_client.mjs), connects to a running ``roger run --foxglove 0`` (the
 real command, node processes and all), subscribes to /tf, /tf_static, /robot_description,
-the spatial map's markers and the left retina, and decodes what arrives with the ros2msg
-schemas the server advertised (@foxglove/rosmsg + @foxglove/rosmsg2-serialization, as
-Foxglove does). The latched topics were published before the client came: they reach it
-through the bridge's resend. Then Ctrl-C stops the run, server and all.
+the spatial map's markers, the left retina and its ROI outlines, and decodes what arrives
+with the ros2msg schemas the server advertised (@foxglove/rosmsg +
+@foxglove/rosmsg2-serialization, as Foxglove does). The latched topics were published
+before the client came: they reach it through the bridge's resend. Then Ctrl-C stops the
+run, server and all.
 
 Also: a taken port, a bad port and a host without --foxglove stop ``roger run`` with one
 line; docs/foxglove-layout.json names only topics of the graph and fields of their types.
@@ -32,6 +33,7 @@ from conftest import REPO, WORLDS
 from js_packages import ensure_js_packages
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from test_e2e_run import descendants
+from visualization_msgs.msg import ImageMarker
 
 from roger_bringup.cli import main as roger_main
 from roger_bringup.foxglove_node import subscription_qos
@@ -44,7 +46,8 @@ LAYOUT = REPO / "docs" / "foxglove-layout.json"
 ROGER = [sys.executable, "-m", "roger_bringup.cli"]
 LEFT = "/roger/left/image_raw"
 MARKERS = "/roger/spatial_map/markers"
-WATCHED = ("/tf", "/tf_static", "/robot_description", MARKERS, LEFT)
+LEFT_ROIS = "/roger/left/roi_markers"
+WATCHED = ("/tf", "/tf_static", "/robot_description", MARKERS, LEFT, LEFT_ROIS)
 TYPES = {t.name: normalize(t.type) for t in TOPICS}
 #: Wall seconds for the run to print its server's address, and for the client.
 START_S, CLIENT_S = 90, 90
@@ -152,6 +155,14 @@ def test_a_foxglove_client_decodes_the_live_run(no_leaks, tmp_path, ros_domain, 
     assert image["data_bytes"] == size * size * 4 == image["step"] * size
     assert image["frame_id"] == "roger_left_eye_optical"
 
+    # The ROIs' outlines over that retina: four segments an ROI, one colour a segment.
+    outlines = topics[LEFT_ROIS]["summary"]
+    assert outlines["points"] > 0 and outlines["points"] % 8 == 0, outlines
+    assert outlines["outline_colors"] * 2 == outlines["points"], outlines
+    assert (outlines["type"], outlines["action"]) == (ImageMarker.LINE_LIST, ImageMarker.ADD)
+    assert outlines["frame_id"] == image["frame_id"] and outlines["scale"] > 0
+    assert 0 < outlines["max_u"] <= size and 0 < outlines["max_v"] <= size, outlines
+
     # The layout's topics are there (/roger/view only with --view).
     assert layout_topics() - {"/roger/view"} <= set(seen["advertised"])
 
@@ -205,6 +216,14 @@ def test_the_layout_shows_retinas_scene_and_table2_from_graph_topics():
     assert images["/roger/left/image_raw"] == "/roger/left/camera_info"
     assert images["/roger/right/image_raw"] == "/roger/right/camera_info"
     assert all(TYPES[t] == "sensor_msgs/msg/Image" for t in images)
+    # Each retina with the ROIs' outlines of that retina (ImageMarkers stamped like it).
+    outlines = {p["imageMode"]["imageTopic"]: {t for t, c in p["imageMode"]["annotations"]
+                                              .items() if c["visible"]}
+                for pid, p in panels.items() if pid.startswith("Image!")}
+    assert outlines["/roger/left/image_raw"] == {LEFT_ROIS}
+    assert outlines["/roger/right/image_raw"] == {"/roger/right/roi_markers"}
+    assert {TYPES[t] for o in outlines.values() for t in o} == {
+        "visualization_msgs/msg/ImageMarker"}
     scene = next(p for pid, p in panels.items() if pid.startswith("3D!"))
     assert scene["followTf"] == "world"
     assert {"/robot_description", MARKERS} <= {t for t, c in scene["topics"].items()

@@ -15,8 +15,9 @@
 // Prints one JSON object once every topic is done (below), or at the timeout: the
 // server's status messages, and per topic the advertised schema name and encodings, the
 // messages received and decoded, the first decoding error, and a summary of what was
-// decoded (TF frame ids, marker counts, image geometry, string lengths). Exit status 0 when
-// every topic is done, 1 at the timeout, 2 when the connection failed.
+// decoded (TF frame ids, marker counts, image marker points, image geometry, string
+// lengths). Exit status 0 when every topic is done, 1 at the timeout, 2 when the
+// connection failed.
 
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
@@ -52,6 +53,18 @@ function summarize(schemaName, msg, summary) {
       summary.namespaces = [...new Set(msg.markers.map((m) => m.ns))].sort();
       summary.frames = [...new Set(msg.markers.map((m) => m.header.frame_id))].sort();
     }
+  } else if (schemaName === "visualization_msgs/msg/ImageMarker") {
+    // The marker with the most points so far (a pair without ROIs has none).
+    if (msg.points.length > (summary.points ?? -1)) {
+      summary.points = msg.points.length;
+      summary.outline_colors = msg.outline_colors.length;
+      summary.type = msg.type;
+      summary.action = msg.action;
+      summary.scale = msg.scale;
+      summary.frame_id = msg.header.frame_id;
+      summary.max_u = Math.max(...msg.points.map((p) => p.x));
+      summary.max_v = Math.max(...msg.points.map((p) => p.y));
+    }
   } else if (schemaName === "sensor_msgs/msg/Image") {
     summary.width = msg.width;
     summary.height = msg.height;
@@ -68,12 +81,15 @@ function summarize(schemaName, msg, summary) {
 }
 
 /** A topic is done once it decoded a message; a marker array once it held a marker besides
- * the DELETEALL that starts each of Roger's. */
+ * the DELETEALL that starts each of Roger's; an image marker once it drew something. */
 function done() {
   return topics.every((t) => {
     const entry = out.topics[t];
     if (entry.schema_name === "visualization_msgs/msg/MarkerArray") {
       return (entry.summary?.markers ?? 0) > 1;
+    }
+    if (entry.schema_name === "visualization_msgs/msg/ImageMarker") {
+      return (entry.summary?.points ?? 0) > 0;
     }
     return entry.decoded > 0;
   });

@@ -36,6 +36,8 @@ HAPTIC = "/roger/haptic"
 GROUND_TRUTH = "/roger/ground_truth"
 GROUND_TRUTH_LABELS = "/roger/ground_truth/labels"
 ROIS = "/roger/rois"
+LEFT_ROI_MARKERS = "/roger/left/roi_markers"
+RIGHT_ROI_MARKERS = "/roger/right/roi_markers"
 GOAL = "/roger/goal"
 MEMORY_REQUEST = "/roger/memory/request"
 MEMORY_RESULT = "/roger/memory/result"
@@ -118,6 +120,10 @@ TOPICS: tuple[Topic, ...] = (
           "monitor (evaluation only)", "which object each retina pixel shows"),
     Topic(ROIS, "roger_interfaces/RoiArray", "reliable", "perception", "attention",
           "ROIs of each stereo pair: features (eqs. 1-5), position, activation"),
+    Topic(LEFT_ROI_MARKERS, "visualization_msgs/ImageMarker", "images", "perception", "-",
+          "the ROIs' outlines over the left retina (its image's stamp), green once mapped"),
+    Topic(RIGHT_ROI_MARKERS, "visualization_msgs/ImageMarker", "images", "perception", "-",
+          "the same outlines over the right retina, moved by each ROI's stereo disparity"),
     Topic(GOAL, "roger_interfaces/ActionGoal", "reliable", "attention", "sim",
           "physical action of a control cycle"),
     Topic(MEMORY_REQUEST, "roger_interfaces/MemoryRequest", "reliable", "attention",

@@ -1,4 +1,5 @@
-"""ROS node of the pre-attentive stage: stereo pair in, ROI array out.
+"""ROS node of the pre-attentive stage: stereo pair in, ROI array out (and the ROIs'
+outlines over each retina, for Foxglove's Image panel).
 
 Run alone: ``roger-perception`` (or ``python -m roger_perception.perception_node``).
 """
@@ -12,6 +13,7 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import ImageMarker
 
 from roger_common import conversions as common
 from roger_common import topics
@@ -29,6 +31,7 @@ from roger_interfaces.msg import HapticReading as HapticReadingMsg
 from roger_interfaces.msg import RoiArray, SpatialMap, StereoGeometry
 from roger_perception import conversions as conv
 from roger_perception.config import PerceptionConfig
+from roger_perception.overlay import roi_overlays
 from roger_perception.perception import Perception
 
 #: Partial stereo pairs kept while their other parts arrive.
@@ -61,6 +64,11 @@ class PerceptionNode(Node):
         self._ready: list[tuple[dict[str, Any], float]] = []
         self.bad_input = BadInput(self)
         self.pub_rois = self.create_publisher(RoiArray, topics.ROIS, RELIABLE)
+        # The ROIs drawn over each retina (roger_perception.overlay), stamped like its image.
+        self.pub_left_markers = self.create_publisher(ImageMarker, topics.LEFT_ROI_MARKERS,
+                                                      IMAGES)
+        self.pub_right_markers = self.create_publisher(ImageMarker, topics.RIGHT_ROI_MARKERS,
+                                                       IMAGES)
         for kind, cls, topic in (("left", Image, topics.LEFT_IMAGE),
                                  ("right", Image, topics.RIGHT_IMAGE),
                                  ("geometry", StereoGeometry, topics.STEREO_GEOMETRY),
@@ -175,6 +183,11 @@ class PerceptionNode(Node):
         rois = self.perception.process(frame, self._mapped)
         self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id,
                                                  self.perception.config.features))
+        # Every pair gets its markers, none drawn when there are no ROIs: a viewer then
+        # drops the outlines of the previous pair.
+        left_overlay, right_overlay = roi_overlays(rois, camera, left_pose, right_pose)
+        self.pub_left_markers.publish(conv.overlay_to_msg(left_overlay, parts["left"].header))
+        self.pub_right_markers.publish(conv.overlay_to_msg(right_overlay, parts["right"].header))
 
 
 def _complete(parts: dict[str, Any]) -> bool:
