@@ -68,15 +68,16 @@ $(STAMPS)/tf2_msgs: $(STAMPS)/requirements third_party/tf2_msgs/CMakeLists.txt t
 
 $(STAMPS)/packages: $(STAMPS)/interfaces $(STAMPS)/tf2_msgs $(SETUP_FILES)
 	@echo "installing the roger packages (editable) into $(VENV)"
-	@$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation \
+	@$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 \
 	  $(foreach p,$(PACKAGES),-e src/$(p)) 2>&1 | $(PIPQUIET)
 	@touch $@
 
-# Foxglove's JavaScript bag readers at the versions of test/js/package-lock.json, for
-# test/test_bag_readers.py (only `make test` needs Node.js and npm).
+# Foxglove's JavaScript bag readers and WebSocket client at the versions of
+# test/js/package-lock.json, for test/test_bag_readers.py and test/test_foxglove.py (only
+# `make test` needs Node.js and npm).
 $(STAMPS)/npm: test/js/package.json test/js/package-lock.json
-	@command -v npm >/dev/null || { echo "bootstrap: npm (Node.js 20) is needed by make test for Foxglove's bag readers"; exit 1; }
-	@echo "installing Foxglove's bag readers into test/js/node_modules (npm ci)"
+	@command -v npm >/dev/null || { echo "bootstrap: npm (Node.js 20) is needed by make test for Foxglove's bag readers and WebSocket client"; exit 1; }
+	@echo "installing Foxglove's bag readers and WebSocket client into test/js/node_modules (npm ci)"
 	@npm ci --prefix test/js --no-audit --no-fund --loglevel=error
 	@mkdir -p $(STAMPS) && touch $@
 

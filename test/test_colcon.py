@@ -6,8 +6,12 @@ packages, with only what README's "Building with colcon" asks for: the venv's bi
 PATH and ``AMENT_PREFIX_PATH`` at the venv. Every package that has a package.xml under src/
 must be built and installed (so a new package is covered without touching this test), and
 the installed entry points must start from the install space, through its ``setup.sh``,
-not from the venv's editable installs. Building roger_interfaces (the C, C++ and Python
-code of its messages) is most of the time: 75-130 s on a busy 2-core machine.
+not from the venv's editable installs. The nodes' executables must be where ``ros2 run``
+looks (``lib/<pkg>``, the ament_python layout of each node package's setup.cfg), ``roger``
+on PATH (``bin``, as ros2cli's ``ros2``), and each node must answer ``--help`` from any
+directory (the simulator's default world comes from ``share/roger_sim/worlds``). Building
+roger_interfaces (the C, C++ and Python code of its messages) is most of the time: 75-130 s
+on a busy 2-core machine.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ SRC = REPO / "src"
 VENV = Path(sys.prefix)
 VENV_BIN = Path(sys.executable).parent
 BUILD_TIMEOUT = 600  # seconds; the build takes 75-130 s on 2 busy cores
+HELP_TIMEOUT = 90  # seconds for a node's --help (an import of torch on a busy machine)
 
 
 def source_packages() -> dict[str, Path]:
@@ -69,6 +74,8 @@ def workspace(tmp_path_factory) -> Path:
     ws = tmp_path_factory.mktemp("colcon_ws")
     shutil.copytree(SRC, ws / "src", symlinks=True,
                     ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    # Beside src/ as in the repository: roger_sim's setup.py installs ../../worlds.
+    shutil.copytree(REPO / "worlds", ws / "worlds")
     env = user_environment()
     env["COLCON_HOME"] = str(ws / "colcon_home")  # no user defaults or mixins
     # Its own session, so that a timeout also ends the cmake, make and compilers under it.
@@ -113,38 +120,95 @@ def test_every_package_under_src_builds_and_installs(workspace: Path) -> None:
 
 
 # Imports every console script of the install space (a fresh interpreter, through
-# setup.sh) and says where each one's module came from.
+# setup.sh) and says where each one's module came from, and which package and module it
+# belongs to.
 ENTRY_POINTS = """
 import importlib.metadata as md, json, sys
 found = {}
 for ep in md.entry_points(group="console_scripts"):
     if ep.dist.name.replace("-", "_").startswith("roger_"):
         assert callable(ep.load()), ep
-        found[ep.name] = sys.modules[ep.module].__file__
+        found[ep.name] = [sys.modules[ep.module].__file__, ep.dist.name.replace("-", "_"),
+                          ep.module]
 import roger_interfaces.msg
-found["roger_interfaces.msg"] = roger_interfaces.msg.__file__
+found["roger_interfaces.msg"] = [roger_interfaces.msg.__file__, "roger_interfaces", ""]
 print(json.dumps(found))
 """
 
+# What `ros2 run PKG EXE ARGS` does (ros2run, ros2pkg.api.get_executable_path), for a shell
+# without a ROS install's ros2 CLI: the package's prefix from the ament index, then
+# PREFIX/lib/PKG/EXE, run in place of this interpreter.
+ROS2_RUN = """
+import os, sys
+from ament_index_python.packages import get_package_prefix
+package, executable = sys.argv[1:3]
+path = os.path.join(get_package_prefix(package), "lib", package, executable)
+os.execv(path, [path, *sys.argv[3:]])
+"""
 
-def in_install_space(workspace: Path, command: str) -> subprocess.CompletedProcess[str]:
+
+def in_install_space(workspace: Path, command: str,
+                     cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     """Run a shell command after sourcing the install space's setup.sh."""
     script = f'. "{workspace}/install/setup.sh" && {command}'
-    return subprocess.run(["sh", "-c", script], cwd=workspace, env=user_environment(),
+    return subprocess.run(["sh", "-c", script], cwd=cwd or workspace, env=user_environment(),
                           capture_output=True, text=True, timeout=120)
+
+
+def ros2_run(workspace: Path, cwd: Path, package: str, *args: str) -> tuple[int, str, str]:
+    """(status, stdout, stderr) of ``ros2 run PACKAGE ARGS`` from the install space, in
+    ``cwd``. A node that does not stop by itself within HELP_TIMEOUT gets SIGINT (a clean
+    ROS shutdown: no Fast DDS file left behind) and the test fails."""
+    script = (f'. "{workspace}/install/setup.sh" && exec "{sys.executable}" -c \'{ROS2_RUN}\' '
+              + " ".join([package, *args]))
+    proc = subprocess.Popen(["sh", "-c", script], cwd=cwd, env=user_environment(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = proc.communicate(timeout=HELP_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        pytest.fail(f"ros2 run {package} {' '.join(args)} still ran after {HELP_TIMEOUT} s "
+                    f"(stopped with SIGINT):\n{tail(out)}\n{tail(err)}")
+    return proc.returncode, out, err
+
+
+def installed_scripts(workspace: Path) -> dict[str, list[str]]:
+    """Console script -> [module file, package, module], loaded from the install space."""
+    loaded = in_install_space(workspace, f'"{sys.executable}" -c \'{ENTRY_POINTS}\'')
+    assert loaded.returncode == 0, loaded.stderr
+    scripts: dict[str, list[str]] = json.loads(loaded.stdout.splitlines()[-1])
+    return scripts
+
+
+def node_executables(scripts: dict[str, list[str]]) -> dict[str, str]:
+    """Executable -> package, for the console scripts that run a ROS node (``*_node``)."""
+    return {name: pkg for name, (_, pkg, module) in scripts.items()
+            if module.endswith("_node")}
 
 
 def test_installed_entry_points_start_from_the_install_space(workspace: Path) -> None:
     install = workspace / "install"
-    scripts = {p.name for p in install.glob("*/bin/*")}
+    scripts = {p.name for p in install.glob("*/bin/*")} | {
+        p.name for pkg in install.iterdir() for p in (pkg / "lib" / pkg.name).glob("*")}
     assert {"roger", "roger-sim"} <= scripts, f"installed scripts: {sorted(scripts)}"
 
-    loaded = in_install_space(workspace, f'"{sys.executable}" -c \'{ENTRY_POINTS}\'')
-    assert loaded.returncode == 0, loaded.stderr
-    modules = json.loads(loaded.stdout.splitlines()[-1])
+    modules = installed_scripts(workspace)
     assert set(modules) - {"roger_interfaces.msg"} == scripts
-    outside = {k: v for k, v in modules.items() if not Path(v).is_relative_to(install)}
+    outside = {k: v for k, (v, _, _) in modules.items() if not Path(v).is_relative_to(install)}
     assert not outside, f"not loaded from the install space: {outside}"
+
+    # Each node's executable where `ros2 run` looks, lib/<pkg>; `roger` is a command, on PATH.
+    nodes = node_executables(modules)
+    assert {"roger-sim", "roger-perception", "roger-memory", "roger-attention"} <= set(nodes)
+    misplaced = {exe: pkg for exe, pkg in nodes.items()
+                 if not (install / pkg / "lib" / pkg / exe).is_file()}
+    assert not misplaced, f"not in install/<pkg>/lib/<pkg> (setup.cfg): {misplaced}"
+    assert not [p for p in install.glob("*/bin/*") if p.name in nodes]
 
     roger = in_install_space(workspace, "command -v roger && roger --help")
     assert roger.returncode == 0, roger.stderr
@@ -152,3 +216,24 @@ def test_installed_entry_points_start_from_the_install_space(workspace: Path) ->
     assert Path(where) == install / "roger_bringup" / "bin" / "roger"
     assert usage.startswith("usage: roger"), roger.stdout
     assert "run" in usage and "demo" in usage
+
+
+def test_every_node_prints_its_usage_from_anywhere(workspace: Path, tmp_path: Path) -> None:
+    # From an empty folder: no worlds/, no parameters file, nothing of the repository.
+    for exe, pkg in sorted(node_executables(installed_scripts(workspace)).items()):
+        status, out, err = ros2_run(workspace, tmp_path, pkg, exe, "--help")
+        assert status == 0, f"{exe} --help: exit {status}\n{tail(out)}\n{tail(err)}"
+        assert f"usage: {exe}" in out, f"{exe} --help printed no usage:\n{out}\n{err}"
+
+
+def test_the_simulator_finds_its_default_world_in_the_install_space(workspace: Path,
+                                                                    tmp_path: Path) -> None:
+    code = ("from roger_sim.config import SimNodeConfig; "
+            "from roger_sim.sim_node import resolve_world; "
+            "print(resolve_world(SimNodeConfig().world))")
+    found = in_install_space(workspace, f'"{sys.executable}" -c "{code}"', cwd=tmp_path)
+    assert found.returncode == 0, found.stderr
+    shipped = workspace / "install" / "roger_sim" / "share" / "roger_sim" / "worlds"
+    assert Path(found.stdout.strip()) == shipped / "table1.yaml"
+    assert sorted(p.name for p in shipped.glob("*.yaml")) == sorted(
+        p.name for p in (REPO / "worlds").glob("*.yaml"))

@@ -8,6 +8,7 @@ Message conversions are in ``conversions``; neither module is imported by core c
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import socket
@@ -32,6 +33,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 
 from roger_common.configdoc import (
     config_fields,
@@ -303,6 +305,16 @@ class BadInput:
         self._logger.warning(line)
 
 
+def node_usage(factory: Any, prog: str) -> str:
+    """What ``prog --help`` prints: the summary of the node's module and how to set its
+    parameters."""
+    doc = inspect.getdoc(sys.modules.get(getattr(factory, "__module__", ""))) or ""
+    summary = doc.split("\n\n")[0]
+    return (f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE]]\n\n"
+            f"{summary}\n\nEvery parameter, with its default and range: docs/parameters.md "
+            "(or `ros2 param describe` on the running node).\n")
+
+
 def spin_node(factory: Any, prog: str, args: list[str] | None = None,
               setup: Any = None) -> None:
     """The ``main`` of every Roger node: init, build, spin with a heartbeat
@@ -324,6 +336,11 @@ def spin_node(factory: Any, prog: str, args: list[str] | None = None,
         args: Command-line arguments for ``rclpy.init`` (None: sys.argv).
         setup: Optional callable run once before ``rclpy.init``.
     """
+    argv = sys.argv if args is None else args
+    if {"-h", "--help"} & set(remove_ros_args(args=argv)[1:]):
+        # Before rclpy.init and the node: help needs no graph, world file or parameter.
+        print(node_usage(factory, prog), end="")
+        return
     if setup is not None:
         setup()
     apply_dds_defaults(os.environ)

@@ -1,7 +1,12 @@
 """ROS node around the pybullet simulator: goals in, retinas, controller status and clock out.
 
 Run alone: ``roger-sim --ros-args -p world:=worlds/table1.yaml`` (or ``python -m
-roger_sim.sim_node``). Topics are listed in the README's node-graph table.
+roger_sim.sim_node``; from a colcon install space ``ros2 run roger_sim roger-sim``). Topics
+are listed in the README's node-graph table.
+
+A relative ``world`` not found from the working directory is looked up where roger_sim keeps
+the shipped worlds (``resolve_world``), so the default ``worlds/table1.yaml`` loads from any
+directory.
 
 Resuming after a crash (docs/reliability.md): when the orchestrator sets ``ROGER_STATE_DIR``,
 the node writes ``sim.json`` there atomically after every goal and world edit: the world as
@@ -61,6 +66,31 @@ from roger_sim.world import load_world, object_from_dict, parse_world, world_to_
 BASELINE = 0.16
 #: Environment variable naming the folder of the resume state (set by the orchestrator).
 STATE_DIR_ENV = "ROGER_STATE_DIR"
+#: The package whose share directory holds the shipped worlds in an install space.
+PACKAGE = "roger_sim"
+
+
+def world_search_path() -> list[Path]:
+    """Where a relative world path is looked up, in order: the working directory; the
+    package's share directory under each prefix of ``AMENT_PREFIX_PATH`` (a colcon install
+    space installs the repository's ``worlds/`` as ``share/roger_sim/worlds``: setup.py;
+    this is the lookup ament_index_python's ``get_package_share_directory`` makes); the
+    source checkout (an editable install, as ``make bootstrap``'s, installs no data files).
+    """
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return [Path.cwd(), *(Path(p) / "share" / PACKAGE for p in prefixes),
+            Path(__file__).resolve().parents[3]]
+
+
+def resolve_world(world: str) -> Path:
+    """The world file the ``world`` parameter names: an absolute path as it is, a relative
+    one in the first folder of ``world_search_path`` that has it (as it is when none has:
+    loading it then says the file cannot be read)."""
+    path = Path(world).expanduser()
+    if path.is_absolute():
+        return path
+    return next((base / path for base in world_search_path() if (base / path).is_file()),
+                path)
 
 
 class SimNode(Node):
@@ -70,7 +100,7 @@ class SimNode(Node):
         super().__init__("roger_sim", **kwargs)
         self.node_config = declare_config(self, SimNodeConfig)
         self.config = declare_config(self, SimConfig, apply=self._reconfigure)
-        world_path = self.node_config.world
+        world_path = resolve_world(self.node_config.world)
         self.world = load_world(world_path)
         state_dir = os.environ.get(STATE_DIR_ENV, "")
         self.state_path = Path(state_dir) / "sim.json" if state_dir else None
