@@ -177,3 +177,29 @@ def test_random_worlds_in_reach_unless_asked_and_unchanged_by_far_objects() -> N
     assert [o.name for o in far] == ["c00_far0", "c01_far0", "c02_far0"]
     assert not any(in_reach(*o.position) for o in far)
     assert [o.category() for o in far] == [o.category() for o in plain.objects[0:6:2]]
+
+
+def test_a_relative_world_is_found_from_any_directory(tmp_path, monkeypatch):
+    """The default world (a relative path) loads where there is no worlds/ folder: the
+    simulator node and `roger run` look it up in roger_sim's share directory or the
+    source checkout (roger_sim.world.resolve_world)."""
+    from roger_bringup.cli import DEFAULT_WORLD, world_arg
+    from roger_sim.world import load_world, resolve_world
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", "")
+    found = resolve_world(DEFAULT_WORLD)
+    assert found.is_file() and found.parts[-2:] == ("worlds", "table1.yaml")
+    assert load_world(found).objects
+    assert world_arg(DEFAULT_WORLD) == found
+    # A path that exists from here is taken as given; one found nowhere stays as given.
+    (tmp_path / "worlds").mkdir()
+    (tmp_path / "worlds" / "table1.yaml").write_text(found.read_text())
+    assert world_arg(DEFAULT_WORLD) == Path(DEFAULT_WORLD)
+    assert resolve_world("worlds/none.yaml") == Path("worlds/none.yaml")
+    # An install space's share directory comes before the source checkout.
+    share = tmp_path / "install" / "share" / "roger_sim" / "worlds"
+    share.mkdir(parents=True)
+    (share / "only_here.yaml").write_text(found.read_text())
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "install"))
+    assert resolve_world("worlds/only_here.yaml") == share / "only_here.yaml"

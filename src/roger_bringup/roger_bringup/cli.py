@@ -18,7 +18,20 @@ if TYPE_CHECKING:
     from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
-DEFAULT_WORLD = Path("worlds/table1.yaml")
+DEFAULT_WORLD = "worlds/table1.yaml"
+
+
+def world_arg(text: str) -> Path:
+    """A --world value: the path as given when it exists (or is absolute); a relative one
+    not found from here is looked up where roger_sim keeps the shipped worlds, as the
+    simulator node does (``roger_sim.world.resolve_world``): ``roger run`` with the default
+    world works from any directory."""
+    path = Path(text)
+    if path.is_absolute() or path.exists():
+        return path
+    from roger_sim.world import resolve_world
+
+    return resolve_world(text)
 #: World of ``make demo``: enough regions that 204 cycles do not run out of things to see.
 DEMO_WORLD = Path("worlds/inspection.yaml")
 
@@ -46,7 +59,7 @@ def _add_workers_args(p: argparse.ArgumentParser, default: int, always_ray: bool
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")
+    p.add_argument("--world", type=world_arg, default=DEFAULT_WORLD, help="world file (YAML)")
     p.add_argument("--policy", choices=("straightforward", "qlearning"),
                    default="straightforward", help="attention policy (paper, section 4)")
     g = p.add_mutually_exclusive_group()
@@ -381,7 +394,7 @@ def main(argv: list[str] | None = None) -> None:
     p_run.set_defaults(func=cmd_run)
     for name, help_text, world, cycles, seeds, out in (
             ("compare", "both policies on the same world and seeds: Table 2, Figures 4-6",
-             DEFAULT_WORLD, 204, 3, Path("runs/compare")),
+             world_arg(DEFAULT_WORLD), 204, 3, Path("runs/compare")),
             ("demo", "the main job of make demo: roger compare on the default world",
              DEMO_WORLD, 204, 5, Path("runs/demo"))):
         p_cmp = sub.add_parser(name, help=help_text)
@@ -481,7 +494,7 @@ def main(argv: list[str] | None = None) -> None:
     _add_features_arg(p_feat)
     p_feat.set_defaults(func=cmd_features)
     p_t1 = sub.add_parser("table1", help="the paper's Table 1: the four boxes' perceived I, D, W")
-    p_t1.add_argument("--world", type=Path, default=DEFAULT_WORLD, help="world file (YAML)")
+    p_t1.add_argument("--world", type=world_arg, default=DEFAULT_WORLD, help="world file (YAML)")
     p_t1.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     p_t1.add_argument("--out", type=Path, default=Path("runs/table1"), help="output folder")
     p_t1.set_defaults(func=cmd_table1)

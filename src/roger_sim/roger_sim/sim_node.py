@@ -60,39 +60,12 @@ from roger_sim.config import SimConfig, SimNodeConfig
 from roger_sim.simulator import Simulator
 from roger_sim.tf_tree import joint_transforms, static_transforms
 from roger_sim.urdf import describe_model, to_urdf
-from roger_sim.world import load_world, object_from_dict, parse_world, world_to_dict
+from roger_sim.world import load_world, object_from_dict, parse_world, resolve_world, world_to_dict
 
 #: Eye separation (metres), for the right CameraInfo's projection matrix.
 BASELINE = 0.16
 #: Environment variable naming the folder of the resume state (set by the orchestrator).
 STATE_DIR_ENV = "ROGER_STATE_DIR"
-#: The package whose share directory holds the shipped worlds in an install space.
-PACKAGE = "roger_sim"
-
-
-def world_search_path() -> list[Path]:
-    """Where a relative world path is looked up, in order: the working directory; the
-    package's share directory under each prefix of ``AMENT_PREFIX_PATH`` (a colcon install
-    space installs the repository's ``worlds/`` as ``share/roger_sim/worlds``: setup.py;
-    this is the lookup ament_index_python's ``get_package_share_directory`` makes); the
-    source checkout (an editable install, as ``make bootstrap``'s, installs no data files).
-    """
-    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
-    return [Path.cwd(), *(Path(p) / "share" / PACKAGE for p in prefixes),
-            Path(__file__).resolve().parents[3]]
-
-
-def resolve_world(world: str) -> Path:
-    """The world file the ``world`` parameter names: an absolute path as it is, a relative
-    one in the first folder of ``world_search_path`` that has it (as it is when none has:
-    loading it then says the file cannot be read)."""
-    path = Path(world).expanduser()
-    if path.is_absolute():
-        return path
-    return next((base / path for base in world_search_path() if (base / path).is_file()),
-                path)
-
-
 class SimNode(Node):
     """Owns one Simulator; executes each ActionGoal and publishes what Roger then senses."""
 

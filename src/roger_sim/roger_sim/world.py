@@ -8,6 +8,7 @@ the field, e.g. ``worlds/x.yaml: objects[2] (obj03).size: must be > 0, got -0.3`
 from __future__ import annotations
 
 import math
+import os
 import re
 import reprlib
 from pathlib import Path
@@ -286,3 +287,30 @@ def world_to_dict(world: WorldSpec) -> dict:
             for o in world.objects
         ],
     }
+
+
+#: The package whose share directory holds the shipped worlds in an install space.
+PACKAGE = "roger_sim"
+
+
+def world_search_path() -> list[Path]:
+    """Where a relative world path is looked up, in order: the working directory; the
+    package's share directory under each prefix of ``AMENT_PREFIX_PATH`` (a colcon install
+    space installs the repository's ``worlds/`` as ``share/roger_sim/worlds``: setup.py;
+    this is the lookup ament_index_python's ``get_package_share_directory`` makes); the
+    source checkout (an editable install, as ``make bootstrap``'s, installs no data files).
+    """
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return [Path.cwd(), *(Path(p) / "share" / PACKAGE for p in prefixes),
+            Path(__file__).resolve().parents[3]]
+
+
+def resolve_world(world: str) -> Path:
+    """The world file the ``world`` parameter names: an absolute path as it is, a relative
+    one in the first folder of ``world_search_path`` that has it (as it is when none has:
+    loading it then says the file cannot be read)."""
+    path = Path(world).expanduser()
+    if path.is_absolute():
+        return path
+    return next((base / path for base in world_search_path() if (base / path).is_file()),
+                path)
