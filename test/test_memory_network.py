@@ -12,6 +12,7 @@ from roger_memory.config import MemoryConfig
 from roger_memory.network import (
     SILENT,
     AssociativeNetwork,
+    novel_offsets,
     student_t_noise,
     train_replay,
     winner_take_all,
@@ -258,3 +259,28 @@ def test_the_z_cap_bounds_what_one_feature_adds_and_nothing_else() -> None:
     assert out[0.0][0, 0] == pytest.approx(400 / FEATURE_DIM, rel=1e-3)
     assert out[3.0][0, 0] == pytest.approx(9 / FEATURE_DIM, rel=1e-3) and out[3.0][0, 0] < 4
     assert out[3.0][1, 0] == pytest.approx(out[0.0][1, 0].item(), rel=1e-3)
+
+
+@pytest.mark.parametrize("mode", ["paper", "extended"])
+def test_novel_samples_lie_beyond_tau_in_the_distance_the_network_uses(mode: str) -> None:
+    """The replay's novel samples must be novel as the network measures them: with the
+    extended mode's cap on each |z|, offsets drawn in the uncapped distance fell within
+    tau (down to 0.7 tau) once capped."""
+    from roger_memory.calibration import rms_z
+
+    cfg = MemoryConfig.for_mode(mode)
+    rng = np.random.default_rng(3)
+    dim = len(cfg.feature_scale)
+    known = rng.random((4000, dim)) < 0.85
+    known[:, :6] = True
+    z = novel_offsets(rng, known, cfg)
+    assert np.all(z[~known] == 0.0)
+    sigma = np.sqrt(2.0) * np.asarray(cfg.feature_scale)
+    d = rms_z(z * sigma, known, np.asarray(cfg.feature_scale),
+              np.asarray(cfg.feature_weight), cfg.z_cap)
+    tau = cfg.identify_distance
+    far = cfg.novel_far * tau if cfg.z_cap <= 0 else min(cfg.novel_far * tau, cfg.z_cap)
+    assert d.min() >= cfg.novel_near * tau * (1 - 1e-6)
+    assert d.max() <= far * (1 + 1e-6)
+    # Spread over the whole range, not piled at its near end.
+    assert np.median(d) > cfg.novel_near * tau + 0.3 * (far - cfg.novel_near * tau)

@@ -378,7 +378,6 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
     prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
     prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
     sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
-    weight = np.asarray(config.feature_weight)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.learning_rate)
     n_novel = round(config.batch_size * config.novel_fraction)
     n_repeat = config.batch_size - n_novel
@@ -404,12 +403,7 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
             if n_novel:
                 nov = rng.choice(usable, n_novel)
                 kn = k_all[nov]
-                direction = rng.standard_normal((n_novel, dim)) * kn
-                norm = np.sqrt((weight * direction ** 2).sum(axis=1)
-                               / np.maximum((weight * kn).sum(axis=1), 1e-9))
-                radius = config.identify_distance * rng.uniform(
-                    config.novel_near, config.novel_far, n_novel)
-                offset = direction / np.maximum(norm, 1e-9)[:, None] * radius[:, None] * sigma
+                offset = novel_offsets(rng, kn, config) * sigma
                 x = np.concatenate([x, x_all[nov] + offset])
                 k = np.concatenate([k, kn])
                 y = np.concatenate([y, np.zeros(n_novel, np.int64)])
@@ -431,6 +425,61 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
         block = config.check_every
     network.eval()
     return steps
+
+
+def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryConfig
+                  ) -> np.ndarray:
+    """Offsets of the replay's synthetic novel samples from their stored looks, in z units
+    (multiply by sqrt(2) sigma_f for feature units): a random direction over each look's
+    known features, at a weighted RMS z-distance drawn uniformly between ``novel_near`` and
+    ``novel_far`` times tau, measured as the network measures it.
+
+    With a cap on each feature's |z| (``z_cap``, the extended mode), an offset's distance
+    stops growing once its features reach the cap, and never exceeds the cap itself: so the
+    radius is drawn up to ``min(novel_far tau, 0.99 z_cap)`` and each offset is stretched
+    (bisection) until its capped distance is that radius. Drawn in the uncapped distance
+    instead, 9 % of the novel samples lay within tau (down to 0.7 tau) of their look once
+    capped, and training taught the network to call copies novel: the extended memory's
+    trained tau fell below the calibration's while the paper mode's rose above it
+    (docs/memory.md, "Novel samples under the cap").
+
+    Args:
+        rng: The replay's generator.
+        known: (n, F) known masks of the looks the samples start from.
+        config: The memory's configuration (weights, tau, cap, novel_near/far).
+
+    Returns:
+        (n, F) offsets, 0 on unknown features.
+    """
+    n, dim = known.shape
+    weight = np.asarray(config.feature_weight)
+    direction = rng.standard_normal((n, dim)) * known
+    wk = np.maximum((weight * known).sum(axis=1), 1e-9)
+    norm = np.sqrt((weight * direction ** 2).sum(axis=1) / wk)
+    unit = direction / np.maximum(norm, 1e-9)[:, None]
+    tau = config.identify_distance
+    if config.z_cap <= 0:
+        radius = tau * rng.uniform(config.novel_near, config.novel_far, n)
+        return unit * radius[:, None]
+    cap2 = config.z_cap * config.z_cap
+    far = min(config.novel_far * tau, 0.99 * config.z_cap)
+    radius = rng.uniform(min(config.novel_near * tau, far), far, n)
+
+    def capped(stretch: np.ndarray) -> np.ndarray:
+        z2 = np.minimum((unit * stretch[:, None]) ** 2, cap2)
+        return np.sqrt((weight * z2).sum(axis=1) / wk)
+
+    lo, hi = np.zeros(n), radius.copy()
+    for _ in range(64):  # grow hi until it reaches the radius (monotone in the stretch)
+        short = capped(hi) < radius
+        if not short.any():
+            break
+        hi = np.where(short, hi * 2.0, hi)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        below = capped(mid) < radius
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return unit * hi[:, None]
 
 
 def _recalled(network: AssociativeNetwork, x: np.ndarray, k: np.ndarray, y: np.ndarray,
