@@ -459,11 +459,11 @@ def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryCon
     unit = direction / np.maximum(norm, 1e-9)[:, None]
     tau = config.identify_distance
     if config.z_cap <= 0:
-        radius = tau * rng.uniform(config.novel_near, config.novel_far, n)
+        radius = np.asarray(tau * rng.uniform(config.novel_near, config.novel_far, n))
         return unit * radius[:, None]
     cap2 = config.z_cap * config.z_cap
     far = min(config.novel_far * tau, 0.99 * config.z_cap)
-    radius = rng.uniform(min(config.novel_near * tau, far), far, n)
+    radius = np.asarray(rng.uniform(min(config.novel_near * tau, far), far, n))
 
     def capped(stretch: np.ndarray) -> np.ndarray:
         z2 = np.minimum((unit * stretch[:, None]) ** 2, cap2)
