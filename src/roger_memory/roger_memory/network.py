@@ -435,13 +435,16 @@ def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryCon
     ``novel_far`` times tau, measured as the network measures it.
 
     With a cap on each feature's |z| (``z_cap``, the extended mode), an offset's distance
-    stops growing once its features reach the cap, and never exceeds the cap itself: so the
-    radius is drawn up to ``min(novel_far tau, 0.99 z_cap)`` and each offset is stretched
-    (bisection) until its capped distance is that radius. Drawn in the uncapped distance
-    instead, 9 % of the novel samples lay within tau (down to 0.7 tau) of their look once
-    capped, and training taught the network to call copies novel: the extended memory's
-    trained tau fell below the calibration's while the paper mode's rose above it
-    (docs/memory.md, "Novel samples under the cap").
+    stops growing once its features reach the cap, and never exceeds the cap itself. The
+    radius is drawn as without a cap, and one the capped distance cannot reach is set to
+    the farthest it can (0.99 z_cap; 1.6 tau in the extended mode); each offset is then
+    stretched (bisection) until its capped distance is that radius. So within reach the
+    novel samples are as dense per unit of distance as the paper mode's, and the rest lie
+    at the far end, where they teach "far is novel" and move no boundary near tau.
+    Two earlier draws taught the extended network a boundary inside the calibration's:
+    the radius in the uncapped distance (9 % of the novel samples then lay within tau
+    once capped) and the radius drawn only over the reachable [tau, 1.6 tau] (three times
+    the paper mode's density there); docs/memory.md, "Novel samples under the cap".
 
     Args:
         rng: The replay's generator.
@@ -462,8 +465,8 @@ def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryCon
         radius = np.asarray(tau * rng.uniform(config.novel_near, config.novel_far, n))
         return unit * radius[:, None]
     cap2 = config.z_cap * config.z_cap
-    far = min(config.novel_far * tau, 0.99 * config.z_cap)
-    radius = np.asarray(rng.uniform(min(config.novel_near * tau, far), far, n))
+    radius = np.minimum(tau * rng.uniform(config.novel_near, config.novel_far, n),
+                        0.99 * config.z_cap)
 
     def capped(stretch: np.ndarray) -> np.ndarray:
         z2 = np.minimum((unit * stretch[:, None]) ** 2, cap2)
