@@ -423,22 +423,27 @@ def test_a_cell_past_its_timeout_fails_with_its_error_and_the_others_finish(
     assert not (out / "failed" / hung[0]["key"]).exists()
 
 
-def test_draw_agreement_counts_the_states_whose_greedy_action_every_draw_shares(tmp_path):
+def test_draw_agreement_counts_the_states_whose_greedy_action_and_ranking_every_draw_shares(
+        tmp_path):
     spec = sweep.parse_spec({**TINY, "worlds": TINY["worlds"][1:], "draws": 3,
                              "alpha_schedules": ["constant", "visits"]}, "tiny.yaml",
                             tmp_path)
     out = tmp_path / "sweep"
     all_cells = sweep.cells(spec, "v1", out / "worlds")
-    undetermined, identified = STATES[0], STATES[2]  # "000" and "010"
-    assert (undetermined.bits, identified.bits) == ("000", "010")
+    undetermined, mapped, identified = STATES[0], STATES[1], STATES[2]
+    assert (undetermined.bits, mapped.bits, identified.bits) == ("000", "001", "010")
     for c in all_cells:
         if not c.draw or c.alpha_schedule != "constant":
             continue  # the visits draws: never trained (nothing to compare)
         table = QTable(QLearningConfig())
-        # Draws 1 and 2 look twice in state 000, draw 3 touches; all map in 010.
+        # Draws 1 and 2 look twice in state 000, draw 3 touches; all map in 010; all look
+        # in 001, where draw 2's second choice is a touch (the others' are tied).
         best = Action.HAPTIC_IMPROVEMENT if c.draw == 3 else Action.VISUAL_IMPROVEMENT
         table.q[undetermined.index, int(best)] = 0.5
         table.q[identified.index, int(Action.MAP_UPDATE)] = 0.8
+        table.q[mapped.index, int(Action.VISUAL_IMPROVEMENT)] = 0.4
+        if c.draw == 2:
+            table.q[mapped.index, int(Action.HAPTIC_IMPROVEMENT)] = 0.3
         folder = out / "train" / c.train_key
         folder.mkdir(parents=True, exist_ok=True)
         table.save(folder / "qtable.json")
@@ -454,12 +459,22 @@ def test_draw_agreement_counts_the_states_whose_greedy_action_every_draw_shares(
                                           "3": ["haptic_improvement"]}
     assert not per_state["000"]["agree"]
     assert per_state["010"]["agree"] and per_state["010"]["greedy"]["3"] == ["map_update"]
+    assert per_state["010"]["ranked_alike"]
+    # Same greedy action in 001, but not the same robot: draw 2 touches next.
+    assert per_state["001"]["agree"]
+    assert per_state["001"]["ranking"]["2"] == [["visual_improvement"],
+                                                ["haptic_improvement"], ["attention_shift"]]
+    assert per_state["001"]["ranking"]["1"] == [["visual_improvement"],
+                                                ["attention_shift", "haptic_improvement"]]
+    assert not per_state["001"]["ranked_alike"]
+    assert constant["states_ranked_alike"] == 4
     assert (visits["trained"], visits["share"], visits["states_agreeing"]) == (0, None, None)
     report = (out / "report.md").read_text()
     assert "## Do the training draws agree?" in report
-    assert "5 of 6 states (83%) agree in all 3 trained draws" in report
-    assert "| paper | constant | 000 | visual improvement | visual improvement | " \
-           "haptic improvement | no |" in report
+    assert "5 of 6 states (83%) agree in all 3 trained draws on the greedy action, 4 on " \
+           "the whole ranking" in report
+    assert "| paper | constant | 000 | visual improvement > " in report
+    assert "| no | no |" in report and "| yes | no |" in report
 
 
 # --- The embedded Ray: ports, results, leftovers --------------------------------------------

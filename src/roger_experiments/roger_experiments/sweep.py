@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 
 from roger_attention.config import ALPHA_SCHEDULES
-from roger_attention.fsm import STATES, possible_actions
+from roger_attention.fsm import STATES, State, possible_actions
 from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
@@ -462,7 +462,29 @@ def run_sweep(spec: SweepSpec, out: Path, runner: Runner, train_runner: Runner,
             assert isinstance(job.spec, RunSpec)
             tick(f"{job.spec.features} {job.spec.label()} on {Path(job.spec.world).stem}")
         bar.close(done, f"{total - len(failed)} done, {len(failed)} failed")
-    return report(spec, all_cells, out, failed)
+    return report(spec, all_cells, out, failed, version)
+
+
+def versions_on_disk(out: Path) -> list[str]:
+    """The code versions of the runs and trainings already in DIR (their cell.json)."""
+    found = set()
+    for sub in ("cells", "train"):
+        for path in (out / sub).glob("*/cell.json"):
+            try:
+                version = json.loads(path.read_text()).get("code_version")
+            except (OSError, ValueError):
+                continue
+            if version:
+                found.add(str(version))
+    return sorted(found)
+
+
+def report_from_disk(spec: SweepSpec, out: Path, version: str) -> dict[str, Any]:
+    """Report on the cells of ``spec`` that code version ``version`` left in ``out``,
+    running and training nothing (``roger sweep --report-only``): a change to the report
+    itself need not run the sweep again, since every cell's key holds the code version."""
+    all_cells = cells(spec, version, out / "worlds")
+    return report(spec, all_cells, out, {}, version)
 
 
 def _json(data: Any) -> bytes:
@@ -617,11 +639,24 @@ def completion(rows: list[dict[str, Any]], out: Path) -> list[dict[str, Any]]:
     return result
 
 
+def ranking(table: QTable, state: State) -> list[list[str]]:
+    """The actions possible in ``state``, best first by Q(s, a), tied actions together.
+
+    The FSM takes an action once per focus where the paper allows it once (an
+    improvement's trial), so after the greedy action the next ranked one is what the robot
+    does: two tables with the same greedy action and another order are two robots."""
+    values: dict[float, list[str]] = defaultdict(list)
+    for a in possible_actions(state):
+        values[table.value(state, a)].append(a.name.lower())
+    return [values[v] for v in sorted(values, reverse=True)]
+
+
 def draw_agreement(all_cells: list[Cell], out: Path) -> list[dict[str, Any]]:
     """How much the training draws agree, per feature mode and step-size schedule: each
     state's greedy action in each draw's table (train/<key>/qtable.json; several when
     tied) and the share of the states whose greedy action is the same in every trained
-    draw (None with fewer than two)."""
+    draw (None with fewer than two); likewise for the whole ranking of the state's
+    actions (``ranking``), which the greedy action alone can hide."""
     keys: dict[tuple[str, str], dict[int, str]] = defaultdict(dict)
     for c in all_cells:
         if c.draw and c.train_key:
@@ -629,32 +664,40 @@ def draw_agreement(all_cells: list[Cell], out: Path) -> list[dict[str, Any]]:
     result = []
     for (features, schedule), by_draw in sorted(keys.items()):
         greedy: dict[int, dict[str, list[str]]] = {}
+        ranks: dict[int, dict[str, list[list[str]]]] = {}
         for draw, key in sorted(by_draw.items()):
             if is_done(out / "train" / key):
                 table = QTable.load(out / "train" / key / "qtable.json")
                 greedy[draw] = {s.bits: [a.name.lower() for a in
                                          table.greedy_actions(s, possible_actions(s))]
                                 for s in STATES}
+                ranks[draw] = {s.bits: ranking(table, s) for s in STATES}
         compared = len(greedy) >= 2
         states: list[dict[str, Any]] = []
-        agreeing = 0
+        agreeing = ranked_alike = 0
         for s in STATES:
             per_draw = {str(d): g[s.bits] for d, g in greedy.items()}
+            per_rank = {str(d): r[s.bits] for d, r in ranks.items()}
             agree = compared and len({tuple(v) for v in per_draw.values()}) == 1
+            alike = compared and len({repr(v) for v in per_rank.values()}) == 1
             agreeing += agree
-            states.append({"state": s.bits, "greedy": per_draw, "agree": agree})
+            ranked_alike += alike
+            states.append({"state": s.bits, "greedy": per_draw, "agree": agree,
+                           "ranking": per_rank, "ranked_alike": alike})
         result.append({"features": features, "alpha_schedule": schedule,
                        "draws": len(by_draw), "trained": len(greedy),
                        "states": len(STATES),
                        "states_agreeing": agreeing if compared else None,
                        "share": agreeing / len(STATES) if compared else None,
+                       "states_ranked_alike": ranked_alike if compared else None,
                        "per_state": states})
     return result
 
 
-def report(spec: SweepSpec, all_cells: list[Cell], out: Path, failed: dict[str, str]
-           ) -> dict[str, Any]:
-    """runs.csv, table2.json, claims.json, draws.json, the figures and report.md."""
+def report(spec: SweepSpec, all_cells: list[Cell], out: Path, failed: dict[str, str],
+           version: str | None = None) -> dict[str, Any]:
+    """runs.csv, table2.json, claims.json, draws.json, the figures and report.md
+    (``version``: the code version of the cells, named in report.md)."""
     rows = runs_table(all_cells, out, failed)
     write_csv(out / "runs.csv", rows)
     table = spread_table(rows)
@@ -688,7 +731,7 @@ def report(spec: SweepSpec, all_cells: list[Cell], out: Path, failed: dict[str, 
               "failed": sum(r["status"] == "failed" for r in rows)}
     atomic_write_bytes(out / "report.md",
                        report_markdown(spec, counts, table, claims, complete, figures,
-                                       rows, agreement).encode())
+                                       rows, agreement, version).encode())
     return {**counts, "table2": table, "claims": claims, "completion": complete,
             "draw_agreement": agreement}
 
@@ -711,7 +754,10 @@ def agreement_markdown(agreement: list[dict[str, Any]]) -> list[str]:
              "Per feature mode and step size, the greedy action of each state in each "
              "draw's table (several when tied; a state no training run reached keeps its "
              "initial values, all tied), and how many of the six states have the same "
-             "greedy action in every trained draw. Details in draws.json.", ""]
+             "greedy action in every trained draw. The greedy action can hide two "
+             "robots: once an improvement's trial is used the FSM takes the next ranked "
+             "action, so the whole ranking is compared too (the ranked column, best "
+             "first, `=` for a tie). Details in draws.json.", ""]
     for a in agreement:
         head = f"**{a['features']}, step size {a['alpha_schedule']}**: "
         if a["share"] is None:
@@ -721,24 +767,36 @@ def agreement_markdown(agreement: list[dict[str, Any]]) -> list[str]:
             lines.append(head + f"{a['states_agreeing']} of {a['states']} states "
                          f"({a['share']:.0%}) agree in all {a['trained']} trained draws"
                          + ("" if a["trained"] == a["draws"] else f" (of {a['draws']})")
-                         + ".")
+                         + f" on the greedy action, {a['states_ranked_alike']} on the "
+                         "whole ranking of the state's actions.")
     draws = sorted({d for a in agreement for st in a["per_state"] for d in st["greedy"]},
                    key=int)
     lines += ["", "| features | step size | state | " + " | ".join(
-        f"draw {d}" for d in draws) + " | same in every draw |",
-        "|" + "---|" * (4 + len(draws))]
+        f"draw {d}" for d in draws) + " | same greedy action | same ranking |",
+        "|" + "---|" * (5 + len(draws))]
     for a in agreement:
         for st in a["per_state"]:
-            acts = [" = ".join(st["greedy"].get(d, ["-"])).replace("_", " ") for d in draws]
+            acts = [_ranked(st.get("ranking", {}).get(d), st["greedy"].get(d))
+                    for d in draws]
             lines.append(f"| {a['features']} | {a['alpha_schedule']} | {st['state']} | "
-                         + " | ".join(acts) + f" | {'yes' if st['agree'] else 'no'} |")
+                         + " | ".join(acts) + f" | {'yes' if st['agree'] else 'no'} | "
+                         + f"{'yes' if st.get('ranked_alike') else 'no'} |")
     return lines
+
+
+def _ranked(rank: list[list[str]] | None, greedy: list[str] | None) -> str:
+    """One draw's cell: its ranking, best first (`>` between, `=` in a tie), or its greedy
+    action where no ranking is known."""
+    if rank:
+        return " > ".join(" = ".join(group) for group in rank).replace("_", " ")
+    return " = ".join(greedy or ["-"]).replace("_", " ")
 
 
 def report_markdown(spec: SweepSpec, counts: dict[str, int], table: list[dict[str, Any]],
                     claims: list[dict[str, Any]], complete: list[dict[str, Any]],
                     figures: list[str], rows: list[dict[str, Any]],
-                    agreement: list[dict[str, Any]] | None = None) -> str:
+                    agreement: list[dict[str, Any]] | None = None,
+                    version: str | None = None) -> str:
     """report.md: what ran, Table 2 with spreads, the claims across worlds, how much the
     training draws agree, the figures."""
     cols = (*COLUMNS, *SCORES)
@@ -749,7 +807,8 @@ def report_markdown(spec: SweepSpec, counts: dict[str, int], table: list[dict[st
              f"{', '.join(spec.alpha_schedules)}, budgets "
              f"{', '.join(UNTIL_COMPLETE if c is None else str(c) for c in spec.cycles)}, "
              f"mode {spec.mode}: {counts['cells']} runs, {counts['done']} done, "
-             f"{counts['failed']} failed. Every run's row is in runs.csv.", "",
+             f"{counts['failed']} failed. Every run's row is in runs.csv."
+             + (f" Code version {version}." if version else ""), "",
              "## Table 2", "",
              "Mean ± sd across worlds (of each world's mean over seeds and draws); for "
              "Q-learning with several draws, the sd across draws (of each draw's mean) in "
