@@ -246,6 +246,47 @@ def test_failing_cells_are_recorded_and_only_unfinished_cells_run_again(tmp_path
     assert again == [] and third["done"] == 2
 
 
+def test_report_only_reports_the_runs_on_disk_and_runs_nothing(tmp_path, monkeypatch,
+                                                                capsys):
+    """``roger sweep --report-only``: a change to the report code changes the code version
+    and so every key; the runs already in DIR are reported as they are, none is run."""
+    from roger_bringup import cli
+
+    data = {**TINY, "worlds": TINY["worlds"][1:]}
+    spec = sweep.parse_spec(data, "tiny.yaml", tmp_path)
+    out = tmp_path / "sweep"
+    sweep.run_sweep(spec, out, _sequential(run_in_process), _trainer, "v1", progress=False)
+    spec_file = tmp_path / "tiny.yaml"
+    spec_file.write_text(yaml.safe_dump(data))
+    before = _runs(out)
+    (out / "report.md").unlink()
+    (out / "runs.csv").unlink()
+
+    def no_ray(*args, **kwargs):
+        raise AssertionError("--report-only started Ray")
+    monkeypatch.setattr(ray_runner, "start_ray", no_ray)
+    assert sweep.versions_on_disk(out) == ["v1"]
+    with pytest.raises(SystemExit) as code:
+        cli.main(["sweep", str(spec_file), "--out", str(out), "--report-only"])
+    assert code.value.code == 0
+    assert _runs(out) == before and all(r["status"] == "done" for r in before)
+    assert "Code version v1." in (out / "report.md").read_text()
+    assert "reporting the runs of code version v1" in capsys.readouterr().err
+    # Another version's runs beside them: which to report must be named.
+    other = out / "cells" / "0000000000000000"
+    other.mkdir()
+    (other / "cell.json").write_text(json.dumps({"code_version": "v0"}))
+    with pytest.raises(SystemExit) as code:
+        cli.main(["sweep", str(spec_file), "--out", str(out), "--report-only"])
+    assert code.value.code == 2
+    assert "code versions v0, v1; name one with --code-version" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as code:
+        cli.main(["sweep", str(spec_file), "--out", str(out), "--report-only",
+                  "--code-version", "v0"])
+    assert code.value.code == 0
+    assert all(r["status"] == "not run" for r in _runs(out))
+
+
 def _sequential(run_fn):
     """A runner of jobs one after another in this process that, as RayRunner, puts the
     caller's files (cell.json) into each finished job's folder."""

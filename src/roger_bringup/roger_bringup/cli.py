@@ -7,7 +7,7 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from roger_attention.config import ALPHA_SCHEDULES
 from roger_common.errors import RogerError
@@ -15,6 +15,7 @@ from roger_common.errors import RogerError
 if TYPE_CHECKING:
     from roger_experiments.ray_runner import RayRunner
     from roger_experiments.runners import RunFn, Runner, RunSpec
+    from roger_experiments.sweep import SweepSpec
     from roger_experiments.train import RandomWorlds
 
 #: Default world of the demo.
@@ -297,6 +298,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from roger_experiments.sweep import load_spec, run_sweep, train_scheduled
 
     spec = load_spec(args.spec)
+    if args.report_only:
+        return _sweep_report_only(args, spec)
     version = code_version()
     start_ray(args.address, args.workers if args.workers and args.workers > 0 else None)
     try:
@@ -310,6 +313,30 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 130
     finally:
         stop_ray()
+    return _print_sweep(args, result)
+
+
+def _sweep_report_only(args: argparse.Namespace, spec: SweepSpec) -> int:
+    """``roger sweep --report-only``: the report of the runs already in DIR."""
+    from roger_experiments.ray_runner import code_version
+    from roger_experiments.sweep import report_from_disk, versions_on_disk
+
+    found = versions_on_disk(args.out)
+    version = args.code_version or (found[0] if len(found) == 1 else None)
+    if version is None:
+        why = (f"{args.out} holds runs of code versions {', '.join(found)}; name one with "
+               "--code-version" if found else f"{args.out} holds no runs")
+        print(f"roger sweep: {why}", file=sys.stderr)
+        return 2
+    if version != code_version():
+        print(f"roger sweep: reporting the runs of code version {version} (this code is "
+              f"{code_version()})", file=sys.stderr)
+    result = report_from_disk(spec, args.out, version)
+    return _print_sweep(args, result)
+
+
+def _print_sweep(args: argparse.Namespace, result: dict[str, Any]) -> int:
+    """The sweep's summary on stdout; exit 1 if a run failed."""
     print(f"{result['done']} of {result['cells']} runs done, {result['failed']} failed")
     for c in result["claims"]:
         lo, hi = c["ci95"]
@@ -435,6 +462,12 @@ def main(argv: list[str] | None = None) -> None:
                          help="output folder; a sweep run again into it does only the runs "
                               "not finished there")
     p_sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_sweep.add_argument("--report-only", action="store_true",
+                         help="run nothing: write the report of the runs already in DIR "
+                              "(those of one code version, see --code-version)")
+    p_sweep.add_argument("--code-version", metavar="V",
+                         help="with --report-only: the code version whose runs to report "
+                              "(needed when DIR holds several)")
     _add_workers_args(p_sweep, default=0, always_ray=True)
     p_sweep.set_defaults(func=cmd_sweep)
     p_chaos = sub.add_parser("chaos", help="one long run with seeded faults (SIGKILL, SIGTERM, "
