@@ -17,7 +17,7 @@ from conftest import REPO
 
 from roger_common.types import WEIGHT_INDEX, FeatureMode, MatchOutcome, feature_dim
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
-from roger_memory.calibration import calibrate
+from roger_memory.calibration import calibrate, choose_z_cap
 from roger_memory.config import (
     CALIBRATED,
     CALIBRATED_FEATURE_SCALE,
@@ -81,15 +81,20 @@ def test_the_shipped_calibration_is_what_the_recorded_looks_give() -> None:
 
 def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_give() -> None:
     """The extended mode's defaults are measured the same way, on its own recorded looks
-    (test/data/memory_queries_extended.csv.gz: no inspection look in it)."""
+    (test/data/memory_queries_extended.csv.gz: no inspection look in it), its cap of
+    one feature's |z| included (``choose_z_cap``)."""
     rows = read_csv(REPO / "test" / "data" / "memory_queries_extended.csv.gz")
     assert "inspection" not in {q.world for q in rows}
     assert all(len(q.features) == feature_dim("extended") for q in rows)
-    cal = calibrate(np.stack([q.features for q in rows]), np.stack([q.known for q in rows]),
-                    np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
-                    np.array([q.entry for q in rows]),
-                    z_cap=CALIBRATED[FeatureMode.EXTENDED].z_cap)
+    cal, scores = choose_z_cap(np.stack([q.features for q in rows]),
+                               np.stack([q.known for q in rows]),
+                               np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
+                               np.array([q.entry for q in rows]))
     ext = CALIBRATED[FeatureMode.EXTENDED]
+    assert min(scores, key=lambda cap: scores[cap]) == ext.z_cap
+    # The cap matters: none, or the old 3, lets the acceptance take in more other looks.
+    assert scores[0.0] > scores[3.0] > scores[ext.z_cap]
+    assert cal.between_accepted == pytest.approx(scores[ext.z_cap])
     np.testing.assert_allclose(cal.feature_scale, ext.feature_scale, rtol=0.01, atol=5e-5)
     assert cal.identify_distance == pytest.approx(ext.identify_distance, abs=0.01)
     assert cal.noise_dof == pytest.approx(ext.noise_dof, abs=0.1)

@@ -62,6 +62,11 @@ class Calibration:
         same_share: Share of the between-entry pairs the mixture calls same-category.
         pairs_same_entry: Number of same-entry pairs used.
         pairs_between: Number of between-entry pairs used.
+        between_accepted: Share of the between-entry pairs (common known features >=
+            ``min_common``) within the acceptance distance, measured with the category
+            scale as the memory measures: how much of the rest of the world the radius
+            that keeps ``identify_quantile`` of the robot's own repeats takes in (lower
+            is better; ``choose_z_cap`` minimises it).
     """
 
     feature_scale: np.ndarray
@@ -74,6 +79,7 @@ class Calibration:
     same_share: float
     pairs_same_entry: int
     pairs_between: int
+    between_accepted: float = float("nan")
 
 
 def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
@@ -196,6 +202,77 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     Raises:
         ValueError: Too few pairs of either kind to estimate a scale.
     """
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed)
+    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap)
+
+
+#: The caps ``choose_z_cap`` tries (0: none).
+Z_CAPS: tuple[float, ...] = (0.0, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 7.0, 8.0)
+
+
+def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
+                 entry: np.ndarray, caps: tuple[float, ...] = Z_CAPS,
+                 identify_quantile: float = 0.95, veto_quantile: float = 0.999,
+                 outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
+                 max_pairs: int = 400_000, seed: int = 0
+                 ) -> tuple[Calibration, dict[float, float]]:
+    """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
+
+    A cap lets a copy through that differs from its category in one feature (a prism's
+    outline at another yaw) and also squeezes every distance, other categories' too, into
+    [0, cap]; the acceptance distance, the ``identify_quantile`` of the robot's own
+    repeats, moves with it. Each cap is scored by the share of between-entry pairs (looks
+    of two map entries: copies and other categories alike, no label read) that its
+    acceptance distance takes in (``Calibration.between_accepted``), and the cap that
+    takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
+    that tells most other looks apart.
+
+    Returns:
+        (the calibration with the chosen cap, {cap: between_accepted} for every cap).
+    """
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed)
+    scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
+                             min_common, cap)
+              for cap in caps}
+    best = min(scores, key=lambda cap: scores[cap])
+    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, best), scores
+
+
+def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: float
+                ) -> float:
+    """The acceptance distance: the ``identify_quantile`` of the weighted RMS z of the
+    robot's own repeats (same-entry pairs, z in their own scale)."""
+    n_common = fit.c0.sum(axis=1)
+    own = rms_z(fit.d0, fit.c0, fit.entry_scale, fit.weight, z_cap)[n_common >= min_common]
+    return float(np.quantile(own, identify_quantile))
+
+
+def _accepted(fit: _Fit, identify_distance: float, min_common: int, z_cap: float) -> float:
+    """Share of the between-entry pairs within ``identify_distance`` (category scale)."""
+    between = fit.c1.sum(axis=1) >= min_common
+    return float(np.mean(rms_z(fit.d1[between], fit.c1[between], fit.scale, fit.weight,
+                               z_cap) <= identify_distance))
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """What the cap-independent part of the calibration measured (pairs and scales)."""
+
+    d0: np.ndarray
+    c0: np.ndarray
+    d1: np.ndarray
+    c1: np.ndarray
+    entry_scale: np.ndarray
+    scale: np.ndarray
+    between_scale: np.ndarray
+    weight: np.ndarray
+    share: float
+
+
+def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
+         outlier_share: float, iterations: int, max_pairs: int, seed: int) -> _Fit:
+    """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
+    scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
     k = np.asarray(known, bool)
     if x.ndim != 2 or k.shape != x.shape:
@@ -244,9 +321,17 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
 
     between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
     weight = information_weight(between_scale, scale)
-    n_common = c0.sum(axis=1)
-    own = rms_z(d0, c0, entry_scale, weight, z_cap)[n_common >= min_common]
-    identify_distance = float(np.quantile(own, identify_quantile))
+    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share)
+
+
+def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_common: int,
+            seed: int, z_cap: float) -> Calibration:
+    """The part of ``calibrate`` that depends on the cap: acceptance distance, replay
+    noise, veto and the share of other entries the acceptance takes in."""
+    d0, c0, d1 = fit.d0, fit.c0, fit.d1
+    entry_scale, scale, weight = fit.entry_scale, fit.scale, fit.weight
+    n_feat = d0.shape[1]
+    identify_distance = _acceptance(fit, identify_quantile, min_common, z_cap)
     # The Student-t of the replay noise: as many independent features as the weights
     # leave effective, (sum w)^2 / sum w^2 over all features.
     dims = max(1, int(round(weight.sum() ** 2 / (weight ** 2).sum())))
@@ -266,8 +351,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
                   & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
         veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
                    * scale[f] / entry_scale[f])
+    accepted = _accepted(fit, identify_distance, min_common, z_cap)
     return Calibration(feature_scale=scale, feature_weight=weight,
-                       between_scale=between_scale, entry_scale=entry_scale,
+                       between_scale=fit.between_scale, entry_scale=entry_scale,
                        identify_distance=identify_distance, noise_dof=dof, veto=veto,
-                       same_share=share,
-                       pairs_same_entry=len(i0), pairs_between=len(i1))
+                       same_share=fit.share,
+                       pairs_same_entry=len(d0), pairs_between=len(d1),
+                       between_accepted=accepted)

@@ -53,17 +53,19 @@ EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
     1.617, 1.220, 0.973, 0.582, 0.408, 0.513,
     0.596, 0.512, 0.209, 1.867, 3.203, 0.543,
     1.840, 0.755, 0.633, 0.528)
-EXTENDED_IDENTIFY_DISTANCE: float = 1.86
+EXTENDED_IDENTIFY_DISTANCE: float = 2.48
 #: TK's and TC's vetoes lie beyond their range [0, 1]: they never veto (docs/memory.md,
 #: "What one feature cannot do").
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1531, 0.2870, 0.3667, 0.0399, 0.0503, 0.0406,
-    0.2438, 0.2074, 0.2162, 0.0307, 0.0369, 0.2255,
-    0.5673, 0.0120, 1.0551, 1.6075)
-EXTENDED_NOISE_DOF: float = 7.62
-#: The extended mode caps each feature's |z| at 3 in every distance (MemoryConfig.z_cap):
-#: a design choice, not a measurement (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 3.0
+    0.1530, 0.2785, 0.3795, 0.0405, 0.0507, 0.0408,
+    0.2415, 0.2075, 0.2140, 0.0312, 0.0369, 0.2246,
+    0.5673, 0.0120, 1.0551, 1.5576)
+EXTENDED_NOISE_DOF: float = 3.90
+#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
+#: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
+#: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
+#: looks of other map entries (docs/memory.md, "A robust distance").
+EXTENDED_Z_CAP: float = 5.5
 
 
 @dataclass(frozen=True)
