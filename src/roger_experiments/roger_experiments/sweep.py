@@ -35,6 +35,7 @@ from roger_attention.fsm import STATES, State, possible_actions
 from roger_attention.qlearning import QTable
 from roger_common.atomic import atomic_write_bytes
 from roger_common.errors import ConfigError
+from roger_common.types import Action
 from roger_experiments import plots
 from roger_experiments.progress import ProgressBar
 from roger_experiments.results import read_metrics, read_run
@@ -640,15 +641,23 @@ def completion(rows: list[dict[str, Any]], out: Path) -> list[dict[str, Any]]:
 
 
 def ranking(table: QTable, state: State) -> list[list[str]]:
-    """The actions possible in ``state``, best first by Q(s, a), tied actions together.
+    """The actions possible in ``state``, best first by Q(s, a), tied actions together, up
+    to the attention shift.
 
     The FSM takes an action once per focus where the paper allows it once (an
     improvement's trial), so after the greedy action the next ranked one is what the robot
-    does: two tables with the same greedy action and another order are two robots."""
+    does: two tables with the same greedy action and another order are two robots. The
+    shift is always allowed and ends the focus, so what ranks below it is never taken and
+    is left out (its group is kept whole when tied)."""
     values: dict[float, list[str]] = defaultdict(list)
     for a in possible_actions(state):
         values[table.value(state, a)].append(a.name.lower())
-    return [values[v] for v in sorted(values, reverse=True)]
+    order = [values[v] for v in sorted(values, reverse=True)]
+    shift = Action.ATTENTION_SHIFT.name.lower()
+    for i, group in enumerate(order):
+        if shift in group:
+            return order[:i + 1]
+    return order
 
 
 def draw_agreement(all_cells: list[Cell], out: Path) -> list[dict[str, Any]]:
@@ -756,8 +765,9 @@ def agreement_markdown(agreement: list[dict[str, Any]]) -> list[str]:
              "initial values, all tied), and how many of the six states have the same "
              "greedy action in every trained draw. The greedy action can hide two "
              "robots: once an improvement's trial is used the FSM takes the next ranked "
-             "action, so the whole ranking is compared too (the ranked column, best "
-             "first, `=` for a tie). Details in draws.json.", ""]
+             "action, so the ranking is compared too (each draw's column: best first, "
+             "`=` for a tie, down to the attention shift, which ends the focus, so "
+             "nothing ranked below it is ever taken). Details in draws.json.", ""]
     for a in agreement:
         head = f"**{a['features']}, step size {a['alpha_schedule']}**: "
         if a["share"] is None:
@@ -768,7 +778,7 @@ def agreement_markdown(agreement: list[dict[str, Any]]) -> list[str]:
                          f"({a['share']:.0%}) agree in all {a['trained']} trained draws"
                          + ("" if a["trained"] == a["draws"] else f" (of {a['draws']})")
                          + f" on the greedy action, {a['states_ranked_alike']} on the "
-                         "whole ranking of the state's actions.")
+                         "ranking of the state's actions up to the shift.")
     draws = sorted({d for a in agreement for st in a["per_state"] for d in st["greedy"]},
                    key=int)
     lines += ["", "| features | step size | state | " + " | ".join(
