@@ -125,6 +125,12 @@ def test_every_shipped_spec_parses_and_the_schedules_spec_reuses_the_claims_cell
     # only the visits cells run); the visits cells are new.
     assert visits and others and others <= claims
     assert not {c.key for c in visits} & claims
+    # claims-visits.yaml: the paper mode's half of claims.yaml plus its visits cells, of
+    # which schedules.yaml's are some.
+    paper = sweep.cells(specs["claims-visits.yaml"], "v")
+    assert {c.key for c in paper if c.alpha_schedule != "visits"} <= claims
+    assert {c.key for c in visits if c.features == "paper"} <= {c.key for c in paper}
+    assert len(paper) == 280
 
 
 def _old_key(data: object, version: str) -> str:
