@@ -30,6 +30,10 @@ applied with the category scale. The per-feature veto is the ``veto_quantile`` o
 difference between two looks of one entry that agree on the other features (repeats the
 robot accepts), scaled from the object's scatter to the category's.
 
+With a cap on each feature's |z| (the extended mode's robust distance), the cap itself is
+measured too (``choose_z_cap``): the one whose acceptance distance takes in the fewest
+looks of other map entries.
+
 Pure numpy; no label is read. Labels (object, category) only score the result elsewhere.
 """
 
