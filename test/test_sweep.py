@@ -610,9 +610,20 @@ def test_embedded_graph_sweep_loopback_only_side_by_side_and_nothing_left(no_lea
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=env)
     seen: set[tuple[str, str]] = set()
+    dashboards: dict[int, str] = {}  # pid: command line of Ray's dashboard process
+    dashboard_ports: set[tuple[str, str]] = set()
     try:
         while proc.poll() is None:
-            seen |= _listening(_ray_pids(str(ray_tmp)) | {proc.pid})
+            pids = _ray_pids(str(ray_tmp))
+            seen |= _listening(pids | {proc.pid})
+            for pid in pids:
+                try:
+                    cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+                except OSError:
+                    continue
+                if b"ray/dashboard/dashboard.py" in cmd:
+                    dashboards[pid] = cmd.decode(errors="replace")
+            dashboard_ports |= _listening(set(dashboards))
             time.sleep(0.2)
         output = proc.stdout.read() if proc.stdout else ""
     finally:
@@ -626,6 +637,11 @@ def test_embedded_graph_sweep_loopback_only_side_by_side_and_nothing_left(no_lea
     assert {"gcs_server", "raylet"} <= names, seen
     exposed = sorted((n, a) for n, a in seen if a not in ("127.0.0.1", "::1"))
     assert not exposed, f"listening beyond loopback: {exposed}"
+    # The dashboard is off: Ray 2.60 still starts its head process for usage statistics
+    # (`--minimal --modules-to-load=UsageStatsHead --disable-frontend`), which serves no
+    # page and listens on no port.
+    assert not dashboard_ports, dashboard_ports
+    assert all("--disable-frontend" in cmd for cmd in dashboards.values()), dashboards
     # Every Ray process is gone, and Ray left nothing in /dev/shm.
     left = _ray_pids(str(ray_tmp))
     for _ in range(100):
