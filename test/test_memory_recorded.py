@@ -127,6 +127,40 @@ def test_information_weights_follow_what_a_feature_tells_apart() -> None:
     assert int(np.argmax(cal.feature_weight)) == 0
 
 
+def test_the_cap_is_chosen_where_outliers_would_widen_tau_and_not_where_there_are_none(
+        ) -> None:
+    """``choose_z_cap`` on synthetic looks (12 categories, 3 copies, 4 looks each): where
+    a few features jump between looks of one object now and then (a prism's outline at
+    another yaw), no cap lets those jumps set a wide tau that takes in other categories,
+    and a finite cap wins; with Gaussian looks only, a cap buys nothing."""
+    def looks(jumps: bool) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(7)
+        centre = 0.5 + rng.normal(0.0, 0.04, (12, 11))  # categories a few scales apart
+        x, entry = [], []
+        for c in range(12):
+            for e in range(3):
+                copy = centre[c] + rng.normal(0.0, 0.02, 11)
+                for _ in range(4):
+                    look = copy + rng.normal(0.0, 0.01, 11)
+                    for f in range(3 if jumps else 0):  # 5 % of looks jump in I1-I3
+                        if rng.random() < 0.05:
+                            look[f] += rng.choice([-1.0, 1.0]) * 0.3
+                    x.append(look)
+                    entry.append(c * 3 + e)
+        return np.clip(np.array(x), 0.0, 1.0), np.array(entry)
+
+    x, entry = looks(jumps=True)
+    cal, scores = choose_z_cap(x, np.ones_like(x, bool), np.zeros(len(x)), entry)
+    best = min(scores, key=lambda cap: scores[cap])
+    assert best > 0 and scores[0.0] > 2 * scores[best], scores
+    assert cal.between_accepted == pytest.approx(scores[best])
+    uncapped = calibrate(x, np.ones_like(x, bool), np.zeros(len(x)), entry)
+    assert cal.identify_distance < uncapped.identify_distance
+    x, entry = looks(jumps=False)
+    _, scores = choose_z_cap(x, np.ones_like(x, bool), np.zeros(len(x)), entry)
+    assert scores[0.0] <= min(scores.values()) + 0.03, scores  # within its noise
+
+
 def test_the_network_itself_turns_down_what_the_veto_did() -> None:
     """With every feature weighted alike, two_rows' replay needs the distance veto 7 times
     (19 with the calibration of before the weights): the weak features, S and T, dilute
