@@ -137,6 +137,25 @@ def test_touch_reads_the_top_height_the_curvature_and_the_crease() -> None:
         assert tk == pytest.approx(TK_SCALE_M / radius, rel=0.03), radius
         assert tc == pytest.approx(0.0, abs=0.04), radius  # 0.03 rad
     assert tactile_shape([]) is None
+    # A touch on a ridge, its normal tipped 25 degrees to one flank (less than a crease),
+    # 3 cm along the ridge from a flat touch: the normal turns across the chord, not along
+    # it, so no curvature (the whole turn, 0.44 rad over 3 cm, would read a 7 cm radius).
+    tip = np.radians(25.0)
+    assert tip < CREASE_RAD
+    ridge = [TactileContact((0.6, 0.0, 0.12), (0.0, 0.0, 1.0)),
+             TactileContact((0.63, 0.0, 0.12), (0.0, np.sin(tip), np.cos(tip)), (0.03, 0.0))]
+    assert tactile_shape(ridge)[1] == pytest.approx(0.0, abs=1e-6)
+    # Normals whose noise tips them about a flat face read no curvature on average: the
+    # turn is as likely against the chord as along it.
+    rng = np.random.default_rng(3)
+    tks = []
+    for _ in range(200):
+        touches = []
+        for dx, dy in ((0.0, 0.0), (0.04, 0.0), (-0.02, 0.035), (-0.02, -0.035)):
+            n = np.array([0.0, 0.0, 1.0]) + rng.normal(0.0, 0.03, 3)
+            touches.append(TactileContact((0.6 + dx, dy, 0.12), tuple(n / np.linalg.norm(n))))
+        tks.append(tactile_shape(touches)[1])
+    assert np.median(tks) == pytest.approx(0.0, abs=1e-6) and np.quantile(tks, 0.9) < 0.03
 
 
 def test_touches_of_several_readings_of_one_object_are_pooled() -> None:

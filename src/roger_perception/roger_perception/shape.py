@@ -27,13 +27,27 @@ Touch (after a haptic improvement, like W; from the tactile sensor's contact poi
 normals of the first touch and its probe touches, ``HapticReading.contacts``):
 
 * ``TH``: height of the highest contact point: the top's height, felt.
-* ``TK``: the curvature the touches agree on. Between two contacts i, j the normal turns by
-  ``|n_i - n_j|`` over ``|p_i - p_j|`` of surface: on a sphere 1 / radius for every pair,
-  wherever the probes land, on a flat face 0. TK is the least-squares curvature over the
-  *smooth* pairs (normals less than ``CREASE_RAD`` apart, at least ``MIN_PAIR_M`` apart):
-  sum(turn * distance) / sum(distance^2), which weighs the long pairs, whose normals' noise
-  (0.03 rad each) matters least. A pair across an edge or a prism's ridge is no curvature.
-  Times ``TK_SCALE_M``.
+* ``TK``: the curvature the touches agree on. Between two contacts i, j the normal turns,
+  along the chord between them, by ``(n_j - n_i) . (p_j - p_i) / |p_j - p_i|`` over
+  ``|p_j - p_i|`` of surface (the discrete normal curvature in the chord's direction): on a
+  sphere ``n = (p - c) / R``, so exactly 1 / radius for every pair, wherever the probes
+  land; on a flat face 0. TK is the least-squares curvature over the *smooth* pairs
+  (normals less than ``CREASE_RAD`` apart, at least ``MIN_PAIR_M`` apart):
+  sum((n_j - n_i) . (p_j - p_i)) / sum(distance^2), which weighs the long pairs, whose
+  normals' noise (0.03 rad each) matters least; clipped at 0 (no surface here is concave).
+  A pair across an edge or a prism's ridge is no curvature. Times ``TK_SCALE_M``.
+
+  Only the turn *along the chord* counts (2026-11-27; before, the whole turn
+  ``|n_i - n_j|``): a touch on a prism's ridge or end edge reports a normal between two
+  faces', less than a crease from its neighbour, and as a whole turn it read as a curve
+  (a prism's pooled TK 0.04-0.41 over yaws, against 0.02-0.04 for boxes and cylinders).
+  Such a normal mostly turns *across* the chord (the touches run along the ridge, the
+  normal tips to one flank), which the along-chord turn ignores, and the noise of a flat
+  face's normals, as likely across as along, averages to 0 instead of adding up. The
+  simulator's own touches on one object at twelve yaws (five readings 1.5 cm apart,
+  pooled; docs/memory.md, "A prism's curvature along the chord") read: prisms 0.00-0.16
+  (size 0.10) and 0.00-0.08 (0.14), boxes and cylinders 0.00-0.01, a 12 cm sphere
+  0.49-0.50 (1 / R = 0.50), as before.
 * ``TC``: the crease the touches cross: over the pairs, the largest angle between the
   normals that the curvature TK does not explain (``angle - curvature * distance``), over
   ``CREASE_FULL_RAD`` (45 degrees), clipped at 1. Of three probe directions 120 degrees
@@ -182,14 +196,15 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
         tops.append(max(c.point[2] for c in contacts))
         points = [np.asarray(c.point, float) for c in contacts]
         normals = [_unit_vector(c.normal) for c in contacts]
-        pairs = [(float(np.linalg.norm(points[i] - points[j])),
-                  float(np.linalg.norm(normals[i] - normals[j])),
+        # (distance, turn along the chord times the distance, angle between the normals)
+        pairs = [(float(np.linalg.norm(points[j] - points[i])),
+                  float(np.dot(normals[j] - normals[i], points[j] - points[i])),
                   math.acos(max(-1.0, min(1.0, float(np.dot(normals[i], normals[j]))))))
                  for i in range(len(points)) for j in range(i + 1, len(points))]
         all_pairs.append([p for p in pairs if p[0] >= MIN_PAIR_M])
-    smooth = [(dist, turn) for pairs in all_pairs for dist, turn, angle in pairs
+    smooth = [(dist, along) for pairs in all_pairs for dist, along, angle in pairs
               if angle < CREASE_RAD]
-    curvature = (sum(t * d for d, t in smooth) / sum(d * d for d, _ in smooth)
+    curvature = (max(0.0, sum(a for _, a in smooth) / sum(d * d for d, _ in smooth))
                  if smooth else 0.0)
     creases = [max((max(0.0, angle - curvature * dist) for dist, _, angle in pairs),
                    default=0.0) for pairs in all_pairs]
