@@ -46,26 +46,26 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02496, 0.03827, 0.05018, 0.00499, 0.00576, 0.00514,
-    0.02607, 0.02240, 0.02096, 0.00421, 0.01013, 0.02935,
-    0.01684, 0.00122, 0.00997, 0.01691)
+    0.02495, 0.03828, 0.05020, 0.00497, 0.00574, 0.00514,
+    0.02604, 0.02232, 0.02082, 0.00420, 0.01012, 0.02935,
+    0.01673, 0.00122, 0.00768, 0.02529)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.617, 1.220, 0.973, 0.582, 0.408, 0.513,
-    0.596, 0.512, 0.209, 1.867, 3.203, 0.543,
-    1.840, 0.755, 0.633, 0.528)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.48
+    1.653, 1.246, 0.993, 0.599, 0.419, 0.524,
+    0.610, 0.526, 0.220, 1.908, 3.274, 0.555,
+    1.888, 0.772, 0.354, 0.458)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 #: TK's and TC's vetoes lie beyond their range [0, 1]: they never veto (docs/memory.md,
 #: "What one feature cannot do").
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1530, 0.2785, 0.3795, 0.0405, 0.0507, 0.0408,
-    0.2415, 0.2075, 0.2140, 0.0312, 0.0369, 0.2246,
-    0.5673, 0.0120, 1.0551, 1.5576)
-EXTENDED_NOISE_DOF: float = 3.90
-#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
+    0.1478, 0.2757, 0.3774, 0.0403, 0.0506, 0.0408,
+    0.2393, 0.2064, 0.2124, 0.0311, 0.0369, 0.2245,
+    0.5635, 0.0120, 1.2649, 2.1408)
+EXTENDED_NOISE_DOF: float = 4.31
+#: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.5
+EXTENDED_Z_CAP: float = 5.0
 
 
 @dataclass(frozen=True)
