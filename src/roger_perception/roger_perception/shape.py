@@ -45,9 +45,9 @@ normals of the first touch and its probe touches, ``HapticReading.contacts``):
   normal tips to one flank), which the along-chord turn ignores, and the noise of a flat
   face's normals, as likely across as along, averages to 0 instead of adding up. The
   simulator's own touches on one object at twelve yaws (five readings 1.5 cm apart,
-  pooled; docs/memory.md, "A prism's curvature along the chord") read: prisms 0.00-0.16
-  (size 0.10) and 0.00-0.08 (0.14), boxes and cylinders 0.00-0.01, a 12 cm sphere
-  0.49-0.50 (1 / R = 0.50), as before.
+  pooled; docs/perception.md, "TK along the chord"; bench/touch_yaw.py) read: prisms
+  0.00-0.16 (size 0.10) and 0.00-0.08 (0.14), boxes and cylinders 0.00-0.01, a 12 cm
+  sphere 0.49-0.50 (1 / R = 0.50), as before.
 * ``TC``: the crease the touches cross: over the pairs, the largest angle between the
   normals that the curvature TK does not explain (``angle - curvature * distance``), over
   ``CREASE_FULL_RAD`` (45 degrees), clipped at 1. Of three probe directions 120 degrees
