@@ -122,6 +122,24 @@ def test_winner_take_all_then_largest_interest() -> None:
     assert m.select_focus(exclude=a) == c
 
 
+def test_unmapped_entries_are_each_visited_before_any_is_visited_again() -> None:
+    """A policy that shifts without mapping (a Q-learner early on) visits every unmapped
+    entry before it comes back to one: the two of largest activation do not take turns."""
+    m = SpatialMap(CFG)
+    m.update([roi(0.5, 0.0, 0.2), roi(0.5, 0.3, 0.9), roi(0.5, 0.6, 0.5), roi(0.5, -0.3, 0.8)],
+             now=0.0)
+    order, focus = [], None
+    for t in range(8):
+        focus = m.select_focus(exclude=focus)
+        m.focus(focus, now=float(t))
+        order.append(focus)
+    ids = [e.entry_id for e in m]
+    by_activation = sorted(ids, key=lambda i: -m.get(i).activation)
+    assert order[:4] == by_activation                        # each once, largest first
+    assert order[4:] == by_activation                        # then round again
+    assert all(m.get(i).foci == 2 for i in ids)
+
+
 def test_single_entry_keeps_the_window_and_empty_map_has_none() -> None:
     m = SpatialMap(CFG)
     assert m.select_focus() is None

@@ -74,6 +74,7 @@ class MapEntry:
         mapped_position: Where the entry was when it was mapped (None while unmapped).
         misses: Consecutive observations in which its position was in view but no ROI
             matched it.
+        foci: How many times attention has focused on the entry (``focus``).
         inhibited: Settled where an earlier fixation found nothing (``forget``): until
             it is mapped it wins an attention shift only by interest, as a mapped entry
             does, not by its activation (inhibition of return).
@@ -97,6 +98,7 @@ class MapEntry:
     mapped_position: Position | None = None
     misses: int = 0
     inhibited: bool = False
+    foci: int = 0
     pending: Position | None = None
     pending_count: int = 0
 
@@ -444,6 +446,7 @@ class SpatialMap:
         self.advance(now)
         entry = self.entries[entry_id]
         entry.interest = 0.0
+        entry.foci += 1
         entry.features = np.asarray(entry.roi.features, np.float32).copy()
         entry.known = np.asarray(entry.roi.known, bool).copy()
 
@@ -509,9 +512,12 @@ class SpatialMap:
     def select_focus(self, exclude: int | None = None) -> int | None:
         """The attention shift's winner-take-all (section 2 and section 5).
 
-        While some entry is unmapped (and not ``inhibited``), the unmapped entry of largest
-        pre-attentive activation wins; otherwise the entry or candidate of largest interest,
-        which keeps the robot vigilant. A candidate that wins (a place seen once, from a
+        While some entry is unmapped (and not ``inhibited``), the unmapped entry focused the
+        fewest times wins, of those the one of largest pre-attentive activation (so every
+        object is visited before any is visited again while the policy leaves them
+        unmapped, as the paper requires: "all objects in the environment are visited at
+        least once"); otherwise the entry or candidate of largest interest, which keeps the
+        robot vigilant. A candidate that wins (a place seen once, from a
         look that no later look covered) is settled as an entry then, so that the shift
         looks at it again. The current focus ``exclude`` only wins when it is the only
         entry. Ties go to the oldest entry.
@@ -524,7 +530,7 @@ class SpatialMap:
             rivals = list(self.entries.values())
         unmapped = [e for e in rivals if not e.mapped and not e.inhibited]
         if unmapped:
-            return max(unmapped, key=lambda e: (e.activation, -e.entry_id)).entry_id
+            return max(unmapped, key=lambda e: (-e.foci, e.activation, -e.entry_id)).entry_id
         best = max(rivals, key=lambda e: (e.interest, -e.entry_id), default=None)
         waiting = max(self.candidates, key=lambda c: c.interest, default=None)
         if waiting is not None and (best is None or waiting.interest > best.interest):
