@@ -122,9 +122,10 @@ def test_winner_take_all_then_largest_interest() -> None:
     assert m.select_focus(exclude=a) == c
 
 
-def test_unmapped_entries_are_each_visited_before_any_is_visited_again() -> None:
-    """A policy that shifts without mapping (a Q-learner early on) visits every unmapped
-    entry before it comes back to one: the two of largest activation do not take turns."""
+def test_unmapped_entries_are_each_visited_once_then_in_turn_by_interest() -> None:
+    """A policy that shifts without mapping (a Q-learner early on) visits every entry once,
+    most active first, and then takes them in turn by interest, as mapped ones: the two
+    most active unmapped entries do not keep the window between them."""
     m = SpatialMap(CFG)
     m.update([roi(0.5, 0.0, 0.2), roi(0.5, 0.3, 0.9), roi(0.5, 0.6, 0.5), roi(0.5, -0.3, 0.8)],
              now=0.0)
@@ -136,8 +137,27 @@ def test_unmapped_entries_are_each_visited_before_any_is_visited_again() -> None
     ids = [e.entry_id for e in m]
     by_activation = sorted(ids, key=lambda i: -m.get(i).activation)
     assert order[:4] == by_activation                        # each once, largest first
-    assert order[4:] == by_activation                        # then round again
-    assert all(m.get(i).foci == 2 for i in ids)
+    assert order[4:] == by_activation                        # then the longest unattended
+    assert all(m.get(i).foci == 2 and not m.get(i).mapped for i in ids)
+
+
+def test_a_place_seen_once_is_reached_while_visited_entries_stay_unmapped() -> None:
+    """Entries focused and left unmapped do not hold the window: a place seen once (a
+    candidate, e.g. an object moved out of view) wins by its interest."""
+    m = SpatialMap(SETTLE)
+    for t in range(2):
+        m.update([at(0.5, 0.0), at(0.5, 0.4)], now=float(t))
+    a, b = (e.entry_id for e in m)
+    m.update([at(0.5, 0.0), at(0.5, 0.4), at(0.4, -0.9)], now=2.0)  # the far edge, once
+    m.update([at(0.5, 0.0), at(0.5, 0.4)], now=3.0, visible=lambda p: p[1] > -0.5)
+    assert len(m.candidates) == 1
+    focus, seen = None, []
+    for t in range(3, 9):
+        focus = m.select_focus(exclude=focus)
+        m.focus(focus, now=float(t))
+        seen.append(focus)
+    assert not m.get(a).mapped and not m.get(b).mapped
+    assert set(seen) - {a, b}, seen                          # the candidate was settled
 
 
 def test_single_entry_keeps_the_window_and_empty_map_has_none() -> None:

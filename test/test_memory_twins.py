@@ -41,7 +41,12 @@ def test_weight_twins_are_learned_once_each_and_told_apart(policy: str,
                                                            tmp_path: Path) -> None:
     memory = _Logged()
     t0 = time.monotonic()
-    recorder, _ = run_core(load_world(WORLDS / "twins.yaml"), policy, 100, seed=0,
+    # Q-learning from an empty table first learns to shift before its final trial; since
+    # the attention shift takes visited, unmapped entries in turn by interest (not the two
+    # most active ones back and forth: docs/attention.md, "Visited first, then interest") it maps
+    # all eight by cycle 120 here, where the straightforward policy needs under 100.
+    cycles = 150 if policy == "qlearning" else 100
+    recorder, _ = run_core(load_world(WORLDS / "twins.yaml"), policy, cycles, seed=0,
                            out=tmp_path, memory=memory)
     assert recorder is not None
     metrics = recorder.close(time.monotonic() - t0)

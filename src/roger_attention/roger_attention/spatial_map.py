@@ -512,13 +512,15 @@ class SpatialMap:
     def select_focus(self, exclude: int | None = None) -> int | None:
         """The attention shift's winner-take-all (section 2 and section 5).
 
-        While some entry is unmapped (and not ``inhibited``), the unmapped entry focused the
-        fewest times wins, of those the one of largest pre-attentive activation (so every
-        object is visited before any is visited again while the policy leaves them
-        unmapped, as the paper requires: "all objects in the environment are visited at
-        least once"); otherwise the entry or candidate of largest interest, which keeps the
-        robot vigilant. A candidate that wins (a place seen once, from a
-        look that no later look covered) is settled as an entry then, so that the shift
+        While some entry is unmapped and was never focused (and is not ``inhibited``), the
+        one of largest pre-attentive activation wins: every object is visited at least once
+        (section 5, "all objects in the environment are visited at least once");
+        otherwise the entry or candidate of largest interest, which keeps the robot
+        vigilant. An entry focused and left unmapped (a policy that shifted before its
+        final trial) then competes by its interest, as a mapped one does: it comes back in
+        turn, and does not keep the robot from the rest, a place seen once included. A
+        candidate that wins (a place seen once, from a look that no later look covered) is
+        settled as an entry then, so that the shift
         looks at it again. The current focus ``exclude`` only wins when it is the only
         entry. Ties go to the oldest entry.
 
@@ -528,9 +530,9 @@ class SpatialMap:
         rivals = [e for e in self.entries.values() if e.entry_id != exclude]
         if not rivals:
             rivals = list(self.entries.values())
-        unmapped = [e for e in rivals if not e.mapped and not e.inhibited]
+        unmapped = [e for e in rivals if not e.mapped and not e.inhibited and e.foci == 0]
         if unmapped:
-            return max(unmapped, key=lambda e: (-e.foci, e.activation, -e.entry_id)).entry_id
+            return max(unmapped, key=lambda e: (e.activation, -e.entry_id)).entry_id
         best = max(rivals, key=lambda e: (e.interest, -e.entry_id), default=None)
         waiting = max(self.candidates, key=lambda c: c.interest, default=None)
         if waiting is not None and (best is None or waiting.interest > best.interest):
