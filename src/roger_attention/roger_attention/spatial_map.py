@@ -520,9 +520,8 @@ class SpatialMap:
         final trial) then competes by its interest, as a mapped one does: it comes back in
         turn, and does not keep the robot from the rest, a place seen once included. A
         candidate that wins (a place seen once, from a look that no later look covered) is
-        settled as an entry then, so that the shift
-        looks at it again. The current focus ``exclude`` only wins when it is the only
-        entry. Ties go to the oldest entry.
+        settled as an entry then, so that the shift looks at it again. The current focus
+        ``exclude`` only wins when it is the only entry. Ties go to the oldest entry.
 
         Returns:
             The winning entry id, or None for an empty map without candidates.
