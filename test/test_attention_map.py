@@ -141,16 +141,23 @@ def test_unmapped_entries_are_each_visited_once_then_in_turn_by_interest() -> No
     assert all(m.get(i).foci == 2 and not m.get(i).mapped for i in ids)
 
 
-def test_a_place_seen_once_is_reached_while_visited_entries_stay_unmapped() -> None:
-    """Entries focused and left unmapped do not hold the window: a place seen once (a
-    candidate, e.g. an object moved out of view) wins by its interest."""
+def two_entries_and_a_place_seen_once() -> tuple[SpatialMap, int, int]:
+    """Two entries settled, and a place at the far edge seen once, then out of view: it
+    waits as a candidate."""
     m = SpatialMap(SETTLE)
     for t in range(2):
         m.update([at(0.5, 0.0), at(0.5, 0.4)], now=float(t))
     a, b = (e.entry_id for e in m)
     m.update([at(0.5, 0.0), at(0.5, 0.4), at(0.4, -0.9)], now=2.0)  # the far edge, once
     m.update([at(0.5, 0.0), at(0.5, 0.4)], now=3.0, visible=lambda p: p[1] > -0.5)
-    assert len(m.candidates) == 1
+    assert len(m.candidates) == 1 and len(m) == 2                  # out of view: it waits
+    return m, a, b
+
+
+def test_a_place_seen_once_is_reached_while_visited_entries_stay_unmapped() -> None:
+    """Entries focused and left unmapped do not hold the window: a place seen once (a
+    candidate, e.g. an object moved out of view) wins by its interest."""
+    m, a, b = two_entries_and_a_place_seen_once()
     focus, seen = None, []
     for t in range(3, 9):
         focus = m.select_focus(exclude=focus)
@@ -374,13 +381,7 @@ def test_a_place_where_fixation_found_nothing_waits_for_its_interest() -> None:
 
 
 def test_a_place_seen_once_is_looked_at_again_when_nothing_else_is_unmapped() -> None:
-    m = SpatialMap(SETTLE)
-    for t in range(2):
-        m.update([at(0.5, 0.0), at(0.5, 0.4)], now=float(t))
-    a, b = (e.entry_id for e in m)
-    m.update([at(0.5, 0.0), at(0.5, 0.4), at(0.4, -0.9)], now=2.0)  # the far edge, once
-    m.update([at(0.5, 0.0), at(0.5, 0.4)], now=3.0, visible=lambda p: p[1] > -0.5)
-    assert len(m.candidates) == 1 and len(m) == 2                  # out of view: it waits
+    m, a, b = two_entries_and_a_place_seen_once()
     assert m.select_focus() == a                                   # unmapped entries first
     m.set_mapped(a, 1)
     m.set_mapped(b, 2)
