@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -23,6 +24,18 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 apply_dds_defaults(os.environ)  # the same Fast DDS profile as every Roger process
 os.environ["ROS_LOG_DIR"] = _LOG_DIR
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """The ROS log folder goes when every test passed; after a failure it stays, and the
+    terminal summary says where, so that the nodes' logs can be read."""
+    if exitstatus == 0:
+        shutil.rmtree(_LOG_DIR, ignore_errors=True)
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int) -> None:  # type: ignore[no-untyped-def]
+    if exitstatus != 0:
+        terminalreporter.write_line(f"ROS node logs of this run: {_LOG_DIR}")
 
 
 def free_domain(avoid: set[int] = frozenset()) -> int:
