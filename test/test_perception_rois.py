@@ -406,3 +406,32 @@ def test_an_object_nearly_as_dark_as_the_ground_gets_its_own_roi() -> None:
             _, frame = sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
             fg, _ = foreground_mask(frame.left, without)
             assert not dim_foreground(frame.left, fg, cfg).any(), target
+
+
+def test_window_boxes_keep_the_object_and_drop_the_seam() -> None:
+    from roger_perception.segmentation import window_boxes
+
+    rng = np.random.default_rng(5)
+    image = 0.039 + 0.01 * rng.standard_normal((64, 64)).astype(np.float32)  # the ground
+    labels = np.zeros((64, 64), np.int32)
+    # 1: a bright object (rows 10-17, cols 10-17) whose ROI also holds a rim and an 8 px
+    # seam of ground two rows below it.
+    image[10:18, 10:18] += 0.3
+    labels[9:19, 9:19] = 1
+    labels[20, 4:18] = 1
+    # 2: an object as dark as grey 25 (0.02 above the ground: 2 of its pixel noise).
+    image[30:42, 30:42] += 0.022
+    labels[29:43, 29:43] = 2
+    # 3: a ROI cut by the retina's left edge, with a rim column on its right.
+    image[50:60, 0:6] += 0.3
+    labels[50:60, 0:7] = 3
+    # 4: a ROI of ground only keeps its box.
+    labels[2:5, 40:50] = 4
+    boxes = [(4, 9, 19, 21), (29, 29, 43, 43), (0, 50, 7, 60), (40, 2, 50, 5)]
+    got = window_boxes(image, labels, boxes, 3.0)
+    assert got[0] == (10, 10, 18, 18)
+    assert abs(got[1][0] - 30) <= 1 and abs(got[1][1] - 30) <= 1
+    assert abs(got[1][2] - 42) <= 1 and abs(got[1][3] - 42) <= 1
+    assert got[2] == (0, 50, 6, 60)
+    assert got[3] == boxes[3]
+    assert window_boxes(image, labels, boxes, 0.0) == boxes

@@ -289,7 +289,10 @@ class Roi:
     Attributes:
         roi_id: Id unique within one ROI array (not across frames: the spatial map
             associates ROIs across frames by position).
-        bbox: (u0, v0, u1, v1) in the left retina, pixels, u1/v1 exclusive.
+        bbox: (u0, v0, u1, v1) in the left retina, pixels, u1/v1 exclusive: the attention
+            window, the box of the ROI's pixels where its object is seen (above the
+            ground's noise; roger_perception.segmentation.window_boxes). The ROI's label
+            image may reach a pixel of rim or a ground seam beyond it.
         position: Estimated centre in the robot frame from stereo, metres.
         features: FEATURE_DIM floats in [0, 1] (see FEATURE_NAMES).
         known: FEATURE_DIM booleans; False where a feature is not measured yet

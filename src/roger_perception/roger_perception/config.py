@@ -54,6 +54,11 @@ class PerceptionConfig:
             retina) above the ground's median, 2 px or more from the ``fg_threshold``
             foreground, in parts of at least ``min_roi_pixels``: objects darker than
             ``fg_threshold`` above the ground (grey 25 renders 0.02 above it). 0: none.
+        window_sigmas: A ROI's window (``Roi.bbox``, the attention window) is the box of
+            its pixels that stand this many of the ground's own noise above the ground
+            after a 3x3 median filter (``segmentation.window_boxes``): the object, not the
+            ground seam between it and a neighbour that the watershed gave it. 0: the
+            box of all the ROI's pixels.
         grad_threshold: Intensity gradient (per pixel, after a 1 px Gaussian) below which
             a foreground pixel is flat and may seed a watershed fragment; edges between
             objects or faces are steeper.
@@ -131,6 +136,7 @@ class PerceptionConfig:
     mapped_radius_m: float = 0.08
     fg_threshold: float = 0.06
     dim_sigmas: float = 5.0
+    window_sigmas: float = 3.0
     grad_threshold: float = 0.012
     sweep_near_m: float = 0.4
     sweep_far_m: float = 3.5
@@ -220,6 +226,7 @@ class PerceptionConfig:
         if self.fg_threshold >= 1.0:
             raise _fail("fg_threshold", self.fg_threshold, "need < 1 (images are in [0, 1])")
         non_negative = ("stereo_smoothness", "min_depth_rise", "motion_blur_px", "dim_sigmas",
+                        "window_sigmas",
                         *self.weight_names())
         for name in non_negative:
             value = getattr(self, name)

@@ -61,6 +61,7 @@ from roger_perception.fovea import FoveaLooks, fixated, fovea_steps, outline_fea
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
+from roger_perception.segmentation import window_boxes
 from roger_perception.shape import top_height, visual_features
 from roger_perception.stereo import (
     fundamental_matrix,
@@ -172,6 +173,8 @@ class Perception:
             u0, v0, u1, v1 = obj.blob.bbox
             roi_labels[v0:v1, u0:u1][obj.blob.mask] = roi_id + 1
         near = LabelNeighbours(roi_labels)
+        windows = window_boxes(frame.left, roi_labels, [o.blob.bbox for o in seen],
+                               cfg.window_sigmas)
         # Two passes over the ROIs around one stereo call for all of them (the disparity
         # search costs little per sample but much per call). Everything up to the
         # activation counts as "features", the stereo call included.
@@ -244,7 +247,7 @@ class Perception:
             activation = pre_attentive_activation(retinal_size, bl.mean_intensity, motion,
                                                   tactile, mapped, cfg)
             rois.append(Roi(
-                roi_id=roi_id, bbox=bl.bbox, position=position, features=feats,
+                roi_id=roi_id, bbox=windows[roi_id], position=position, features=feats,
                 known=known, activation=activation, retinal_size=retinal_size,
                 mean_intensity=bl.mean_intensity, motion=motion, tactile=tactile,
                 mapped=mapped, cut=obj.cut, size_m=size_m,
