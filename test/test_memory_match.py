@@ -20,6 +20,7 @@ from roger_common.types import (
     MatchOutcome,
     MemoryOp,
     MemoryRequest,
+    feature_names,
 )
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory
@@ -233,6 +234,34 @@ def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
     assert decision.result.outcome == MatchOutcome.NEW
     assert memory.match(q, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
     assert memory.stats.vetoes == 2
+
+
+def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
+    """A copy seen from another place differs in I, T, S or O by more than one object's
+    own looks do: in the extended mode those features count in the distance but never
+    veto. A difference in W (or D, H, TH) beyond its veto still turns the look down."""
+    from roger_memory.calibration import NO_VETO
+    from roger_memory.config import VIEW_DEPENDENT_FEATURES
+
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    known = np.ones(len(names), bool)
+    x = np.full(len(names), 0.4)
+    assert {n for n, v in zip(names, cfg.veto, strict=True) if v >= NO_VETO} == {
+        *VIEW_DEPENDENT_FEATURES, "TK", "TC"}
+    # Each offset lies beyond the feature's old (one-look) veto: I1 0.148, S3 0.212,
+    # O 0.564, W 0.037, D 0.031; alone it stays within the acceptance distance.
+    for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
+                                 ("W", 0.045, True), ("D", 0.035, True)):
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[names.index(name)] += offset
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.distance < cfg.identify_distance, name
+        assert decision.vetoed is vetoed, name
+        assert decision.result.outcome == (MatchOutcome.NEW if vetoed
+                                           else MatchOutcome.IDENTIFIED), name
 
 
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:

@@ -15,7 +15,13 @@ import pytest
 import torch
 from conftest import REPO
 
-from roger_common.types import WEIGHT_INDEX, FeatureMode, MatchOutcome, feature_dim
+from roger_common.types import (
+    WEIGHT_INDEX,
+    FeatureMode,
+    MatchOutcome,
+    feature_dim,
+    feature_names,
+)
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
 from roger_memory.calibration import calibrate, choose_z_cap
 from roger_memory.config import (
@@ -25,6 +31,7 @@ from roger_memory.config import (
     CALIBRATED_IDENTIFY_DISTANCE,
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
+    VIEW_DEPENDENT_FEATURES,
     MemoryConfig,
 )
 from roger_memory.memory import AssociativeMemory
@@ -89,7 +96,9 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     cal, scores = choose_z_cap(np.stack([q.features for q in rows]),
                                np.stack([q.known for q in rows]),
                                np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
-                               np.array([q.entry for q in rows]))
+                               np.array([q.entry for q in rows]),
+                               vetoing=np.array([n not in VIEW_DEPENDENT_FEATURES for n in
+                                                 feature_names("extended")]))
     ext = CALIBRATED[FeatureMode.EXTENDED]
     assert min(scores, key=lambda cap: scores[cap]) == ext.z_cap
     # The cap matters: none, or the old 3, lets the acceptance take in more other looks.

@@ -176,7 +176,8 @@ def student_t_dof(distance: float, quantile: float, dims: int, seed: int = 0,
 def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
               identify_quantile: float = 0.95, veto_quantile: float = 0.999,
               outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
-              max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0) -> Calibration:
+              max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0,
+              vetoing: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -199,6 +200,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         z_cap: The memory's cap of one feature's |z| (MemoryConfig.z_cap; 0: none): the
             acceptance distance and the veto's repeats are measured with the distance the
             memory will use.
+        vetoing: (F,) features whose difference may veto (None: all). The others get
+            NO_VETO: features that vary with the view (MemoryConfig docs, the extended
+            mode's VIEW_DEPENDENT_FEATURES) differ between copies seen from two places by
+            more than one object's looks from one place ever do.
 
     Returns:
         The Calibration.
@@ -207,8 +212,12 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         ValueError: Too few pairs of either kind to estimate a scale.
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed)
-    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap)
+    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing)
 
+
+#: The veto of a feature that may not veto: every feature lies in [0, 1], so no
+#: difference exceeds it.
+NO_VETO: float = 1.0
 
 #: The caps ``choose_z_cap`` tries (0: none).
 Z_CAPS: tuple[float, ...] = (0.0, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 7.0, 8.0)
@@ -218,7 +227,7 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  entry: np.ndarray, caps: tuple[float, ...] = Z_CAPS,
                  identify_quantile: float = 0.95, veto_quantile: float = 0.999,
                  outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
-                 max_pairs: int = 400_000, seed: int = 0
+                 max_pairs: int = 400_000, seed: int = 0, vetoing: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -231,6 +240,8 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
+    ``vetoing`` as ``calibrate``'s.
+
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
@@ -239,7 +250,8 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                              min_common, cap)
               for cap in caps}
     best = min(scores, key=lambda cap: scores[cap])
-    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, best), scores
+    return (_finish(fit, identify_quantile, veto_quantile, min_common, seed, best, vetoing),
+            scores)
 
 
 def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: float
@@ -329,7 +341,7 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
 
 
 def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_common: int,
-            seed: int, z_cap: float) -> Calibration:
+            seed: int, z_cap: float, vetoing: np.ndarray | None = None) -> Calibration:
     """The part of ``calibrate`` that depends on the cap: acceptance distance, replay
     noise, veto and the share of other entries the acceptance takes in."""
     d0, c0, d1 = fit.d0, fit.c0, fit.d1
@@ -355,6 +367,8 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
                   & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
         veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
                    * scale[f] / entry_scale[f])
+    if vetoing is not None:
+        veto[~np.asarray(vetoing, bool)] = NO_VETO
     accepted = _accepted(fit, identify_distance, min_common, z_cap)
     return Calibration(feature_scale=scale, feature_weight=weight,
                        between_scale=fit.between_scale, entry_scale=entry_scale,

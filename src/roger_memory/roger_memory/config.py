@@ -54,12 +54,22 @@ EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
     0.610, 0.526, 0.220, 1.908, 3.274, 0.555,
     1.888, 0.772, 0.354, 0.458)
 EXTENDED_IDENTIFY_DISTANCE: float = 2.34
-#: TK's and TC's vetoes lie beyond their range [0, 1]: they never veto (docs/memory.md,
-#: "What one feature cannot do").
+#: The extended mode's features that vary with the view: the paper's I, T and S (shading
+#: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
+#: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
+#: copies seen from two places differ in them by more than one object's own looks ever
+#: do, and a veto measured on those looks turned copies away (docs/memory.md, "Only
+#: view-invariant features veto"). They still count in every distance, capped; only
+#: D, W and the 3-D and touch features (H, TH, TK, TC) may veto.
+VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
+                                            "S1", "S2", "S3", "O")
+#: The view-dependent features' vetoes are NO_VETO (1.0: no difference of features in
+#: [0, 1] exceeds it); TK's and TC's, measured, lie beyond that range too: they never
+#: veto (docs/memory.md, "What one feature cannot do").
 EXTENDED_VETO: tuple[float, ...] = (
-    0.1478, 0.2757, 0.3774, 0.0403, 0.0506, 0.0408,
-    0.2393, 0.2064, 0.2124, 0.0311, 0.0369, 0.2245,
-    0.5635, 0.0120, 1.2649, 2.1408)
+    1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
+    1.0, 1.0, 1.0, 0.0311, 0.0369, 0.2245,
+    1.0, 0.0120, 1.2649, 2.1408)
 EXTENDED_NOISE_DOF: float = 4.31
 #: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
