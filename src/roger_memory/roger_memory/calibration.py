@@ -357,22 +357,16 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
     # RMS z within the acceptance distance, own scale): an entry that slid onto a neighbour
     # pairs two objects' looks and is left out by its other features (one such entry on
     # inspection set the weight's 99.9th percentile of all same-entry pairs to 0.14).
-    # Without a cap (the paper mode) it is scaled from one object's scatter to the
-    # category's (feature_scale / entry_scale): another copy of the category, elsewhere,
-    # differs by that much more. With a cap the distance hears a feature up to |z| = cap
-    # and the veto takes over from there: the larger of the robot's own largest repeat
-    # difference and the cap in the category's scale. (Scaling a tail by the ratio of
-    # two cores put TK's veto at 1.26, beyond its range: a sphere's curvature against a
-    # box's, 40-60 category scales, never counted.)
+    # Scaled from one object's scatter to the category's (feature_scale / entry_scale):
+    # another copy of the category, elsewhere, differs by that much more.
     veto = np.empty(n_feat)
     for f in range(n_feat):
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]
                   & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
-        tail = float(np.quantile(np.abs(d0[repeat, f]), veto_quantile))
-        veto[f] = (max(tail, z_cap * np.sqrt(2.0) * scale[f]) if z_cap > 0
-                   else tail * scale[f] / entry_scale[f])
+        veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
+                   * scale[f] / entry_scale[f])
     if vetoing is not None:
         veto[~np.asarray(vetoing, bool)] = NO_VETO
     accepted = _accepted(fit, identify_distance, min_common, z_cap)

@@ -64,13 +64,12 @@ EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
                                             "S1", "S2", "S3", "O")
 #: The view-dependent features' vetoes are NO_VETO (1.0: no difference of features in
-#: [0, 1] exceeds it). The others' are the larger of the robot's own largest repeat
-#: difference (99.9th percentile) and the cap in the category's scale, z_cap sqrt 2
-#: sigma_f (docs/memory.md, "The veto takes over at the cap").
+#: [0, 1] exceeds it); TK's and TC's, measured, lie beyond that range too: they never
+#: veto (docs/memory.md, "What one feature cannot do").
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0297, 0.0715, 0.2075,
-    1.0, 0.0087, 0.4314, 0.6921)
+    1.0, 1.0, 1.0, 0.0311, 0.0369, 0.2245,
+    1.0, 0.0120, 1.2649, 2.1408)
 EXTENDED_NOISE_DOF: float = 4.31
 #: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
