@@ -27,14 +27,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
-    """The ROS log folder goes when every test passed; after a failure it stays, and the
-    terminal summary says where, so that the nodes' logs can be read."""
-    if exitstatus == 0:
+    """The ROS log folder goes when every test passed or no node logged anything; after a
+    failure it stays, and the terminal summary says where, so that the nodes' logs can be
+    read."""
+    if exitstatus == 0 or not any(Path(_LOG_DIR).iterdir()):
         shutil.rmtree(_LOG_DIR, ignore_errors=True)
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus: int) -> None:  # type: ignore[no-untyped-def]
-    if exitstatus != 0:
+    if exitstatus != 0 and Path(_LOG_DIR).exists():
         terminalreporter.write_line(f"ROS node logs of this run: {_LOG_DIR}")
 
 
