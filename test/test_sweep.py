@@ -747,3 +747,28 @@ def test_a_two_node_cluster_runs_the_cells_as_the_embedded_ray_does(no_leaks, ra
         run_in_process(run, tmp_path / "here" / folder.name)
         assert ((tmp_path / "here" / folder.name / "cycles.csv").read_text()
                 == (folder / "cycles.csv").read_text())
+
+
+def test_a_killed_runs_scratch_folder_is_removed_by_the_next_run(tmp_path, monkeypatch) -> None:
+    """A worker killed mid-run leaves its scratch folder; the next scratch folder made on
+    that machine removes the folders of dead makers, and only those."""
+    from roger_experiments.runners import OWNER_FILE, remove_orphan_scratch, scratch_dir
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    folders = {}
+    for name, owner in (("roger-run-dead", str(dead.pid)), ("roger-qtable-dead", str(dead.pid)),
+                        ("roger-run-live", str(os.getpid())), ("roger-run-no-owner", None),
+                        ("other-dead", str(dead.pid))):
+        folders[name] = tmp_path / name
+        folders[name].mkdir()
+        if owner is not None:
+            (folders[name] / OWNER_FILE).write_text(owner)
+    made = scratch_dir("roger-run-")
+    assert made.parent == tmp_path and (made / OWNER_FILE).read_text() == str(os.getpid())
+    assert not folders["roger-run-dead"].exists() and not folders["roger-qtable-dead"].exists()
+    assert all(folders[n].exists() for n in ("roger-run-live", "roger-run-no-owner",
+                                             "other-dead"))
+    assert remove_orphan_scratch(tmp_path) == 0  # the live maker's folders stay
+    assert made.exists()

@@ -21,7 +21,6 @@ import json
 import os
 import shutil
 import socket
-import tempfile
 import time
 import traceback
 import uuid
@@ -30,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from roger_experiments.runners import Job, RunFn, RunSpec
+from roger_experiments.runners import Job, RunFn, RunSpec, scratch_dir
 from roger_experiments.train import TrainDraw
 
 #: Ray's switch for single-machine (loopback) mode, read when Ray is imported.
@@ -111,7 +110,7 @@ def run_task(run: Callable[[Any, Path], dict[str, Any]], spec: RunSpec | TrainDr
     """What a Ray task runs: ``run(spec, scratch)`` in a scratch folder of the worker, then
     the folder's files as bytes. An exception comes back as its traceback (the run failed,
     the sweep goes on); only a dead worker makes Ray retry."""
-    scratch = Path(tempfile.mkdtemp(prefix="roger-run-"))
+    scratch = scratch_dir("roger-run-")
     out = scratch / "run"
     saved = {k: os.environ.get(k) for k in (env or {})}
     os.environ.update(env or {})

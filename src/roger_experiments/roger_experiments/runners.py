@@ -10,6 +10,7 @@ tasks.
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -118,6 +119,55 @@ def run_in_process(spec: RunSpec, out: Path) -> dict[str, Any]:
     return recorder.close(time.monotonic() - t0)
 
 
+#: Prefixes of the runs' scratch folders in the temporary directory (``scratch_dir``).
+SCRATCH_PREFIXES: tuple[str, ...] = ("roger-run-", "roger-qtable-")
+#: The file in a scratch folder that names the process that made it.
+OWNER_FILE = "owner.pid"
+
+
+def scratch_dir(prefix: str) -> Path:
+    """A new scratch folder in the temporary directory, marked with this process's pid.
+
+    Its maker removes it when the run ends; a worker killed mid-run (a chaos test, a
+    killed sweep) cannot, so every new folder first removes the orphans of dead makers
+    on this machine (``remove_orphan_scratch``).
+    """
+    remove_orphan_scratch()
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    (path / OWNER_FILE).write_text(str(os.getpid()))
+    return path
+
+
+def remove_orphan_scratch(root: Path | None = None) -> int:
+    """Remove the scratch folders (``SCRATCH_PREFIXES``) under ``root`` (the temporary
+    directory) whose maker's pid is no live process; returns how many. A folder without
+    an owner file (not made by ``scratch_dir``, or being made) is left alone, and so is
+    one whose pid a live process holds (possibly reused: kept on the safe side)."""
+    root = Path(tempfile.gettempdir()) if root is None else Path(root)
+    removed = 0
+    for prefix in SCRATCH_PREFIXES:
+        for folder in root.glob(prefix + "*"):
+            try:
+                pid = int((folder / OWNER_FILE).read_text())
+            except (OSError, ValueError):
+                continue
+            if not _alive(pid):
+                shutil.rmtree(folder, ignore_errors=True)
+                removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process of that pid exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 @contextmanager
 def materialized_qtable(spec: RunSpec, out: Path) -> Iterator[tuple[Path | None, bool]]:
     """The Q-table file a run reads and whether it learns: a scratch copy of
@@ -131,7 +181,7 @@ def materialized_qtable(spec: RunSpec, out: Path) -> Iterator[tuple[Path | None,
             fresh_table(out, spec.alpha_schedule)  # the table keeps it while it learns
         yield out / "qtable.json", True
     else:
-        scratch = Path(tempfile.mkdtemp(prefix="roger-qtable-"))
+        scratch = scratch_dir("roger-qtable-")
         try:
             (scratch / "qtable.json").write_text(spec.qtable_text)
             yield scratch / "qtable.json", False
