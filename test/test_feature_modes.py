@@ -158,6 +158,37 @@ def test_touch_reads_the_top_height_the_curvature_and_the_crease() -> None:
     assert np.median(tks) == pytest.approx(0.0, abs=1e-6) and np.quantile(tks, 0.9) < 0.03
 
 
+def test_a_creased_objects_touches_read_no_curvature() -> None:
+    """TK is the curvature of a smooth surface (times 1 - TC): an edge touch whose normal
+    turns along the chord reads as a curve on its own, but not on an object whose touches
+    cross a crease (a prism's ridge), where the faces are flat."""
+    from roger_common.types import TactileContact
+    from roger_perception.shape import CREASE_FULL_RAD, TK_SCALE_M, touch_shape
+    up = (0.0, 0.0, 1.0)
+    tip = np.radians(10.0)  # an edge's normal, tipped along the chord
+    edge = (TactileContact((0.6, 0.0, 0.12), up),
+            TactileContact((0.64, 0.0, 0.12), (np.sin(tip), 0.0, np.cos(tip))))
+    tilt = np.radians(60.0)
+    ridge = (TactileContact((0.6, 0.0, 0.12), up),
+             TactileContact((0.63, 0.0, 0.09), (np.sin(tilt), 0.0, np.cos(tilt))))
+    curve = np.sin(tip) * 0.04 / 0.04 ** 2  # the pair's turn along the chord / its length
+    alone = touch_shape([edge])
+    assert alone is not None
+    assert alone[1] == pytest.approx(curve * TK_SCALE_M * (1 - alone[2]), rel=1e-6)
+    assert alone[2] == pytest.approx(0.0, abs=0.01)
+    # Two readings across the ridge (no smooth pair: 60 degrees is a crease) and the edge's:
+    # the pooled curvature is the edge's, the crease the readings' median.
+    assert np.radians(60.0) - curve * np.hypot(0.03, 0.03) > CREASE_FULL_RAD
+    pooled = touch_shape([ridge, ridge, edge])
+    assert pooled is not None
+    assert pooled[2] == pytest.approx(1.0) and pooled[1] == pytest.approx(0.0, abs=1e-9)
+    # One of three across the ridge: the median crease is the edge's, and the curve stays.
+    mostly_smooth = touch_shape([ridge, edge, edge])
+    assert mostly_smooth is not None
+    assert mostly_smooth[1] == pytest.approx(curve * TK_SCALE_M * (1 - mostly_smooth[2]))
+    assert mostly_smooth[1] > 0.9 * curve * TK_SCALE_M
+
+
 def test_touches_of_several_readings_of_one_object_are_pooled() -> None:
     """A second haptic improvement adds its touches to the first's (haptic.HapticMemory):
     a reading that missed the prism's ridge no longer decides its crease alone, and the

@@ -48,6 +48,16 @@ normals of the first touch and its probe touches, ``HapticReading.contacts``):
   pooled; docs/perception.md, "TK along the chord"; bench/touch_yaw.py) read: prisms
   0.00-0.16 (size 0.10) and 0.00-0.08 (0.14), boxes and cylinders 0.00-0.01, a 12 cm
   sphere 0.49-0.50 (1 / R = 0.50), as before.
+
+  TK is the curvature of a *smooth* surface: the least-squares curvature times 1 - TC
+  (2026-11-28). Where the touches cross a crease (TC 1: a prism, whose touches always
+  cross its ridge) the faces are flat, and what curvature the pairs still read is an
+  edge's normal turning along the chord: single prism readings up to 0.43 in the robot's
+  own looks, and with it TK's calibrated veto (the 99.9th percentile of one object's own
+  repeats) was 1.26, beyond its range, so a sphere (TK 0.3-0.8) was taken for a box or
+  cylinder (0.00-0.05) of its size and grey. A sphere's and a flat top's crease is near 0
+  (0.05-0.15), so their TK is nearly unchanged. (docs/perception.md, "TK of a smooth
+  surface".)
 * ``TC``: the crease the touches cross: over the pairs, the largest angle between the
   normals that the curvature TK does not explain (``angle - curvature * distance``), over
   ``CREASE_FULL_RAD`` (45 degrees), clipped at 1. Of three probe directions 120 degrees
@@ -177,9 +187,9 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
     """TH, TK and TC of one object from the touches of one or more haptic readings.
 
     Pairs of touches are formed within a reading only. TK is the least-squares curvature
-    over the smooth pairs of every reading; TH and TC are the medians over the readings of
-    each reading's top height and crease (the crease measured against the pooled
-    curvature).
+    over the smooth pairs of every reading, times 1 - TC; TH and TC are the medians over
+    the readings of each reading's top height and crease (the crease measured against the
+    pooled curvature).
 
     Args:
         readings: Each reading's touches (``HapticReading.contacts``); empty ones are
@@ -208,8 +218,12 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
                  if smooth else 0.0)
     creases = [max((max(0.0, angle - curvature * dist) for dist, _, angle in pairs),
                    default=0.0) for pairs in all_pairs]
-    return (_unit(float(np.median(tops)) / H_MAX_M), _unit(curvature * TK_SCALE_M),
-            _unit(float(np.median(creases)) / CREASE_FULL_RAD))
+    crease = _unit(float(np.median(creases)) / CREASE_FULL_RAD)
+    # The curvature of a smooth surface: where the touches cross a crease (TC 1) the faces
+    # are flat and what the pairs read as a curve is an edge's normal (module docstring).
+    smooth_share = 1.0 - crease if math.isfinite(crease) else 1.0
+    return (_unit(float(np.median(tops)) / H_MAX_M),
+            _unit(curvature * TK_SCALE_M * smooth_share), crease)
 
 
 def _unit_vector(v: Sequence[float]) -> np.ndarray:
