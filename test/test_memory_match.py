@@ -248,7 +248,7 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     known = np.ones(len(names), bool)
     x = np.full(len(names), 0.4)
     assert {n for n, v in zip(names, cfg.veto, strict=True) if v >= NO_VETO} == {
-        *VIEW_DEPENDENT_FEATURES, "TK", "TC"}
+        *VIEW_DEPENDENT_FEATURES}
     # Each offset lies beyond the feature's old (one-look) veto: I1 0.148, S3 0.212,
     # O 0.564, W 0.037, D 0.031; alone it stays within the acceptance distance.
     for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
@@ -262,6 +262,38 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
         assert decision.vetoed is vetoed, name
         assert decision.result.outcome == (MatchOutcome.NEW if vetoed
                                            else MatchOutcome.IDENTIFIED), name
+
+
+def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -> None:
+    """A box and a cylinder of one size, grey and weight differ in the fovea's outline O
+    alone, which the cap keeps within the acceptance distance; between two looks whose
+    touches found a smooth flat top (TC and TK low) O vetoes at ``flat_veto``. A prism's
+    outline (TC high: it turns with the yaw) and a sphere's (TK high) do not veto."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    o, tc, tk = names.index("O"), names.index("TC"), names.index("TK")
+    assert cfg.flat_veto[o] < 0.13 and cfg.veto[o] >= 1.0
+    assert all(v >= 1.0 for i, v in enumerate(cfg.flat_veto) if i != o)
+    known = np.ones(len(names), bool)
+    for what, crease, curvature, vetoed in (("box against cylinder", 0.1, 0.0, True),
+                                            ("prism at another yaw", 1.0, 0.0, False),
+                                            ("sphere", 0.1, 0.5, False)):
+        x = np.full(len(names), 0.4)
+        x[tc], x[tk], x[o] = crease, curvature, 0.05
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[o] = 0.18  # a box's outline against a cylinder's
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.distance < cfg.identify_distance, what
+        assert decision.vetoed is vetoed, what
+        # A look without touch is not known to be flat: O does not veto.
+        unknown = known.copy()
+        unknown[[tc, tk]] = False
+        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+    # In the paper mode the rule has nothing to read (no touch features).
+    paper = MemoryConfig.for_mode("paper")
+    assert all(v >= 1.0 for v in paper.flat_veto)
 
 
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:

@@ -23,7 +23,7 @@ from roger_common.types import (
     feature_names,
 )
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
-from roger_memory.calibration import calibrate, choose_z_cap
+from roger_memory.calibration import calibrate, choose_z_cap, flat_looks
 from roger_memory.config import (
     CALIBRATED,
     CALIBRATED_FEATURE_SCALE,
@@ -31,6 +31,7 @@ from roger_memory.config import (
     CALIBRATED_IDENTIFY_DISTANCE,
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
+    FLAT_VETO_FEATURES,
     VIEW_DEPENDENT_FEATURES,
     MemoryConfig,
 )
@@ -93,13 +94,23 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     rows = read_csv(REPO / "test" / "data" / "memory_queries_extended.csv.gz")
     assert "inspection" not in {q.world for q in rows}
     assert all(len(q.features) == feature_dim("extended") for q in rows)
-    cal, scores = choose_z_cap(np.stack([q.features for q in rows]),
-                               np.stack([q.known for q in rows]),
+    names = feature_names("extended")
+    x, known = np.stack([q.features for q in rows]), np.stack([q.known for q in rows])
+    defaults = MemoryConfig.for_mode("extended")
+    flat = flat_looks(x, known, names.index("TC"), names.index("TK"), defaults.flat_crease,
+                      defaults.flat_curvature)
+    cal, scores = choose_z_cap(x, known,
                                np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
                                np.array([q.entry for q in rows]),
-                               vetoing=np.array([n not in VIEW_DEPENDENT_FEATURES for n in
-                                                 feature_names("extended")]))
+                               vetoing=np.array([n not in VIEW_DEPENDENT_FEATURES
+                                                 for n in names]),
+                               flat=flat,
+                               flat_vetoing=np.array([n in FLAT_VETO_FEATURES for n in names]))
     ext = CALIBRATED[FeatureMode.EXTENDED]
+    # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
+    assert 0.2 < flat.mean() < 0.6
+    assert cal.flat_veto is not None
+    np.testing.assert_allclose(cal.flat_veto, ext.flat_veto, rtol=0.01, atol=5e-4)
     assert min(scores, key=lambda cap: scores[cap]) == ext.z_cap
     # The cap matters: none, or the old 3, lets the acceptance take in more other looks.
     assert scores[0.0] > scores[3.0] > scores[ext.z_cap]

@@ -71,6 +71,12 @@ class Calibration:
             scale as the memory measures: how much of the rest of the world the radius
             that keeps ``identify_quantile`` of the robot's own repeats takes in (lower
             is better; ``choose_z_cap`` minimises it).
+        flat_veto: Per feature, the veto between two looks the hand found smooth and flat
+            (``flat_looks``) for the features of ``flat_vetoing``, NO_VETO for the rest
+            (None when no look was marked flat): the larger of the robot's own
+            ``veto_quantile`` difference between two such looks of one entry and the cap
+            in a flat category's scale, z_cap sqrt 2 sigma_f, both measured on the flat
+            looks alone (docs/memory.md, "The outline vetoes between flat tops").
     """
 
     feature_scale: np.ndarray
@@ -84,6 +90,30 @@ class Calibration:
     pairs_same_entry: int
     pairs_between: int
     between_accepted: float = float("nan")
+    flat_veto: np.ndarray | None = None
+
+
+def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
+               curvature_index: int, crease_max: float, curvature_max: float) -> np.ndarray:
+    """Looks whose object the hand found smooth and flat-topped: crease (TC) and curvature
+    (TK) both known, TC < ``crease_max`` and TK < ``curvature_max`` (a box's or cylinder's
+    top; not a prism's ridge, not a sphere).
+
+    Args:
+        features: (n, F) looks.
+        known: (n, F) their known masks.
+        crease_index: Column of the crease feature (TC).
+        curvature_index: Column of the curvature feature (TK).
+        crease_max: Largest crease of a smooth top.
+        curvature_max: Largest curvature of a flat top.
+
+    Returns:
+        (n,) bool.
+    """
+    x = np.asarray(features, np.float64)
+    k = np.asarray(known, bool)
+    return (k[:, crease_index] & k[:, curvature_index] & (x[:, crease_index] < crease_max)
+            & (x[:, curvature_index] < curvature_max))
 
 
 def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
@@ -177,7 +207,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
               identify_quantile: float = 0.95, veto_quantile: float = 0.999,
               outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
               max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0,
-              vetoing: np.ndarray | None = None) -> Calibration:
+              vetoing: np.ndarray | None = None, flat: np.ndarray | None = None,
+              flat_vetoing: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -204,6 +235,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
             NO_VETO: features that vary with the view (MemoryConfig docs, the extended
             mode's VIEW_DEPENDENT_FEATURES) differ between copies seen from two places by
             more than one object's looks from one place ever do.
+        flat: (n,) looks whose object the hand found smooth and flat (``flat_looks``;
+            None: none).
+        flat_vetoing: (F,) features that veto between two flat looks
+            (``Calibration.flat_veto``; None: none).
 
     Returns:
         The Calibration.
@@ -211,8 +246,9 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     Raises:
         ValueError: Too few pairs of either kind to estimate a scale.
     """
-    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed)
-    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing)
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat)
+    return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing,
+                   flat_vetoing)
 
 
 #: The veto of a feature that may not veto: every feature lies in [0, 1], so no
@@ -227,7 +263,8 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  entry: np.ndarray, caps: tuple[float, ...] = Z_CAPS,
                  identify_quantile: float = 0.95, veto_quantile: float = 0.999,
                  outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
-                 max_pairs: int = 400_000, seed: int = 0, vetoing: np.ndarray | None = None
+                 max_pairs: int = 400_000, seed: int = 0, vetoing: np.ndarray | None = None,
+                 flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -240,18 +277,18 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
-    ``vetoing`` as ``calibrate``'s.
+    ``vetoing``, ``flat`` and ``flat_vetoing`` as ``calibrate``'s.
 
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
-    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed)
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat)
     scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
                              min_common, cap)
               for cap in caps}
     best = min(scores, key=lambda cap: scores[cap])
-    return (_finish(fit, identify_quantile, veto_quantile, min_common, seed, best, vetoing),
-            scores)
+    return (_finish(fit, identify_quantile, veto_quantile, min_common, seed, best, vetoing,
+                    flat_vetoing), scores)
 
 
 def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: float
@@ -283,10 +320,12 @@ class _Fit:
     between_scale: np.ndarray
     weight: np.ndarray
     share: float
+    flat_fit: _Fit | None = None
 
 
 def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
-         outlier_share: float, iterations: int, max_pairs: int, seed: int) -> _Fit:
+         outlier_share: float, iterations: int, max_pairs: int, seed: int,
+         flat: np.ndarray | None = None) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
     scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
@@ -337,11 +376,22 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
 
     between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
     weight = information_weight(between_scale, scale)
-    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share)
+    flat_fit = None
+    if flat is not None:
+        # The same fit on the flat looks alone: how one flat top's features spread, and a
+        # flat category's.
+        flat = np.asarray(flat, bool)
+        try:
+            flat_fit = _fit(x[flat], k[flat], run[flat], entry[flat], outlier_share,
+                            iterations, max_pairs, seed)
+        except ValueError:
+            flat_fit = None
+    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit)
 
 
 def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_common: int,
-            seed: int, z_cap: float, vetoing: np.ndarray | None = None) -> Calibration:
+            seed: int, z_cap: float, vetoing: np.ndarray | None = None,
+            flat_vetoing: np.ndarray | None = None) -> Calibration:
     """The part of ``calibrate`` that depends on the cap: acceptance distance, replay
     noise, veto and the share of other entries the acceptance takes in."""
     d0, c0, d1 = fit.d0, fit.c0, fit.d1
@@ -369,10 +419,23 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
                    * scale[f] / entry_scale[f])
     if vetoing is not None:
         veto[~np.asarray(vetoing, bool)] = NO_VETO
+    # Between two looks the hand found smooth and flat, the features of ``flat_vetoing``
+    # veto at the larger of two things measured on the flat looks alone: the robot's own
+    # largest difference between two looks of one entry (unscaled: a flat top's outline is
+    # the same from every place) and the cap in a flat category's scale, beyond which the
+    # distance no longer hears the feature.
+    flat_veto = None
+    if fit.flat_fit is not None and flat_vetoing is not None:
+        ff = fit.flat_fit
+        flat_veto = np.full(n_feat, NO_VETO)
+        for g in np.flatnonzero(np.asarray(flat_vetoing, bool)):
+            own = np.abs(ff.d0[ff.c0[:, g], g])
+            tail = float(np.quantile(own, veto_quantile)) if own.size else NO_VETO
+            flat_veto[g] = min(NO_VETO, max(tail, z_cap * np.sqrt(2.0) * ff.scale[g]))
     accepted = _accepted(fit, identify_distance, min_common, z_cap)
     return Calibration(feature_scale=scale, feature_weight=weight,
                        between_scale=fit.between_scale, entry_scale=entry_scale,
                        identify_distance=identify_distance, noise_dof=dof, veto=veto,
                        same_share=fit.share,
                        pairs_same_entry=len(d0), pairs_between=len(d1),
-                       between_accepted=accepted)
+                       between_accepted=accepted, flat_veto=flat_veto)

@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02495, 0.03828, 0.05020, 0.00497, 0.00574, 0.00514,
-    0.02604, 0.02232, 0.02082, 0.00420, 0.01012, 0.02935,
-    0.01673, 0.00122, 0.00768, 0.02529)
+    0.02580, 0.03801, 0.04662, 0.00513, 0.00562, 0.00533,
+    0.02747, 0.02287, 0.02046, 0.00434, 0.01024, 0.02610,
+    0.02435, 0.00123, 0.00530, 0.02465)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.653, 1.246, 0.993, 0.599, 0.419, 0.524,
-    0.610, 0.526, 0.220, 1.908, 3.274, 0.555,
-    1.888, 0.772, 0.354, 0.458)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.34
+    1.677, 1.293, 1.096, 0.584, 0.499, 0.529,
+    0.500, 0.458, 0.242, 1.891, 3.321, 0.626,
+    1.636, 0.776, 0.426, 0.446)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.26
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -64,13 +64,29 @@ EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
                                             "S1", "S2", "S3", "O")
 #: The view-dependent features' vetoes are NO_VETO (1.0: no difference of features in
-#: [0, 1] exceeds it); TK's and TC's, measured, lie beyond that range too: they never
-#: veto (docs/memory.md, "What one feature cannot do").
+#: [0, 1] exceeds it). TK's and TC's lay beyond that range until TK was measured on
+#: smooth surfaces only and the set was re-recorded with the attention window (2026-11-27:
+#: 1.26 and 2.14 before, a prism's edge reading taken for a curve); now they veto.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0311, 0.0369, 0.2245,
-    1.0, 0.0120, 1.2649, 2.1408)
-EXTENDED_NOISE_DOF: float = 4.31
+    1.0, 1.0, 1.0, 0.0347, 0.0394, 0.2238,
+    1.0, 0.0126, 0.2362, 0.2315)
+EXTENDED_NOISE_DOF: float = 4.63
+#: The features that veto between two looks the hand found smooth and flat
+#: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
+#: from every place (a cylinder's rim is the ellipse the outline is measured against, a
+#: box reads 0.15-0.2 at every yaw), unlike a prism's (its ridge turns with the yaw) or a
+#: sphere's (its outline against the rim's ellipse changes with the declination), and it
+#: is the one feature that parts a box from a cylinder of one size, grey and weight
+#: (docs/memory.md, "The outline vetoes between flat tops").
+FLAT_VETO_FEATURES: tuple[str, ...] = ("O",)
+#: The extended mode's veto between two flat looks: NO_VETO (1.0) but for
+#: FLAT_VETO_FEATURES, calibrated on the same looks (``calibration.calibrate``'s
+#: ``flat_veto``).
+EXTENDED_FLAT_VETO: tuple[float, ...] = (
+    1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
+    1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
+    0.1063, 1.0, 1.0, 1.0)
 #: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
@@ -89,18 +105,20 @@ class Calibrated:
     noise_dof: float
     maskable_features: tuple[str, ...]
     z_cap: float
+    flat_veto: tuple[float, ...]
 
 
 #: The calibrated defaults of each feature mode.
 CALIBRATED: dict[FeatureMode, Calibrated] = {
     FeatureMode.PAPER: Calibrated(CALIBRATED_FEATURE_SCALE, CALIBRATED_FEATURE_WEIGHT,
                                   CALIBRATED_IDENTIFY_DISTANCE, CALIBRATED_VETO,
-                                  CALIBRATED_NOISE_DOF, ("W",), 0.0),
+                                  CALIBRATED_NOISE_DOF, ("W",), 0.0,
+                                  (1.0,) * len(CALIBRATED_VETO)),
     FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
                                      EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
                                      EXTENDED_NOISE_DOF,
                                      TOUCH_FEATURE_NAMES + FOVEA_FEATURE_NAMES,
-                                     EXTENDED_Z_CAP),
+                                     EXTENDED_Z_CAP, EXTENDED_FLAT_VETO),
 }
 _DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]
 
@@ -134,6 +152,15 @@ class MemoryConfig:
         veto: Per feature, the largest difference between a query and the winner's nearest
             look that can still be an identification (calibrated: never seen between two
             looks of one object); a larger one vetoes the network's identification.
+        flat_veto: Per feature, the veto between a query and the winner's nearest look when
+            the hand found both smooth and flat-topped (TC < ``flat_crease``, TK <
+            ``flat_curvature``, both known in both; extended mode): the smaller of this and
+            ``veto`` applies (calibrated; 1.0, no veto, for all but FLAT_VETO_FEATURES).
+        flat_crease: Largest crease TC of a smooth top (TC reads 1 on a prism, whose
+            touches always cross its ridge, and under 0.2 on everything else the robot
+            touched).
+        flat_curvature: Largest curvature TK of a flat top (a sphere reads 0.3-0.8, a box's
+            or cylinder's top under 0.05).
         min_common_features: Fewest features known both in the query and in a stored look
             for that look's unit to answer.
         identify_share: Smallest winner-take-all share of the winning address for a
@@ -181,6 +208,13 @@ class MemoryConfig:
     veto: tuple[float, ...] = field(default=_DEFAULT.veto, metadata={
         "doc": "Calibrated largest per-feature difference of an identification",
         "live": True})
+    flat_veto: tuple[float, ...] = field(default=_DEFAULT.flat_veto, metadata={
+        "doc": "Calibrated veto between two looks of smooth flat tops, per feature",
+        "live": True})
+    flat_crease: float = field(default=0.5, metadata={
+        "doc": "Largest touch crease TC of a smooth top (flat_veto)", "live": True})
+    flat_curvature: float = field(default=0.2, metadata={
+        "doc": "Largest touch curvature TK of a flat top (flat_veto)", "live": True})
     min_common_features: int = field(default=6, metadata={
         "doc": "Fewest common known features for a stored look to answer"})
     identify_share: float = field(default=0.5, metadata={
@@ -227,7 +261,8 @@ class MemoryConfig:
         names = feature_names(mode)
         # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
         for name, kind in (("feature_scale", "positive numbers"),
-                           ("veto", "positive numbers"), ("feature_weight", "numbers >= 0")):
+                           ("veto", "positive numbers"), ("flat_veto", "positive numbers"),
+                           ("feature_weight", "numbers >= 0")):
             value = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                           else v for v in getattr(self, name))
             object.__setattr__(self, name, value)
@@ -244,6 +279,8 @@ class MemoryConfig:
         _positive("identify_distance", self.identify_distance)
         _positive("noise_dof", self.noise_dof)
         _non_negative("z_cap", self.z_cap)
+        _unit("flat_crease", self.flat_crease)
+        _unit("flat_curvature", self.flat_curvature)
         _positive_int("min_common_features", self.min_common_features)
         if self.min_common_features > len(names):
             _fail("min_common_features", self.min_common_features, f"<= {len(names)}")

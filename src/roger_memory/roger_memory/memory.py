@@ -17,7 +17,9 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
 * A distance veto remains: the winner's nearest stored look must not differ from the query
   in any feature by more than ``veto`` (a difference never seen between two looks of one
   object); a veto turns IDENTIFIED into UNDETERMINED (non-final) or NEW (final), and is
-  counted in :attr:`AssociativeMemory.stats`.
+  counted in :attr:`AssociativeMemory.stats`. Between two looks the hand found smooth and
+  flat-topped (``MemoryConfig.flat_veto``: a box's or cylinder's top) the fovea's outline
+  O vetoes too; elsewhere it varies with the view and does not.
 
 Each address holds several looks: the looks of the focus that stored it (the requests
 carry the focus id) and, later, looks of foci identified as it, added only when one of
@@ -43,8 +45,9 @@ from roger_common.types import (
     MemoryOp,
     MemoryRequest,
     feature_dim,
+    feature_names,
 )
-from roger_memory.calibration import rms_z
+from roger_memory.calibration import flat_looks, rms_z
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -124,7 +127,7 @@ class AssociativeMemory:
         self._network.eval()
         self._focus_id = 0
         self._focus_looks: list[tuple[np.ndarray, np.ndarray]] = []
-        self._veto = np.asarray(config.veto, np.float32)
+        self._set_vetoes(config)
         warm_up_optimizer()
         #: Replay steps the last training took (diagnostics and benchmarks).
         self.last_train_steps = 0
@@ -147,7 +150,22 @@ class AssociativeMemory:
         """
         check_live_change(self._config, config)
         self._config = config
+        self._set_vetoes(config)
+
+    def _set_vetoes(self, config: MemoryConfig) -> None:
         self._veto = np.asarray(config.veto, np.float32)
+        self._flat_veto = np.minimum(self._veto, np.asarray(config.flat_veto, np.float32))
+        names = feature_names(config.features)
+        # The flat-top veto needs the touch's crease and curvature (extended mode).
+        self._flat_columns = ((names.index("TC"), names.index("TK"))
+                              if "TC" in names and "TK" in names
+                              and np.any(self._flat_veto < self._veto) else None)
+
+    def _flat(self, features: np.ndarray, known: np.ndarray) -> bool:
+        assert self._flat_columns is not None
+        crease, curvature = self._flat_columns
+        return bool(flat_looks(features[None, :], known[None, :], crease, curvature,
+                               self._config.flat_crease, self._config.flat_curvature)[0])
 
     @property
     def seed(self) -> int:
@@ -266,8 +284,11 @@ class AssociativeMemory:
         nearest = mine[np.argmin(d2[mine])]
         distance = float(np.sqrt(d2[nearest]))
         common = self._known[nearest] & k
-        vetoed = bool(np.any(np.abs(self._exemplars[nearest] - x)[common] >
-                             self._veto[common]))
+        veto = self._veto
+        if (self._flat_columns is not None and self._flat(x, k)
+                and self._flat(self._exemplars[nearest], self._known[nearest])):
+            veto = self._flat_veto
+        vetoed = bool(np.any(np.abs(self._exemplars[nearest] - x)[common] > veto[common]))
         if vetoed:
             self.stats.vetoes += 1
         held = False
