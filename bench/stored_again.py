@@ -103,7 +103,7 @@ def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
     memory = loop.memory
     assert memory is not None
     cfg = memory.config
-    scale, veto = np.asarray(cfg.feature_scale), np.asarray(cfg.veto)
+    scale = np.asarray(cfg.feature_scale)
     address_category = {int(r["address"]): category.get(r["true_object"], "?")
                         for r in rows if r["outcome"] == "stored"}
     first_of: dict[str, int] = {}
@@ -129,6 +129,7 @@ def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
         diff = np.abs(looks - look.features[None, :])
         z = np.where(common, diff / (np.sqrt(2.0) * scale[None, :]), 0.0)
         k = int(np.argmin(np.sqrt((z ** 2).sum(axis=1) / np.maximum(common.sum(axis=1), 1))))
+        veto = memory.veto_between(look.features, look.known, looks[k], known[k])
         vetoed = [names[f] for f in range(len(names)) if common[k, f] and diff[k, f] > veto[f]]
         top = sorted(((names[f], float(z[k, f])) for f in range(len(names)) if common[k, f]),
                      key=lambda t: -t[1])[:4]

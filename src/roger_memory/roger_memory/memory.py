@@ -161,6 +161,16 @@ class AssociativeMemory:
                               if "TC" in names and "TK" in names
                               and np.any(self._flat_veto < self._veto) else None)
 
+    def veto_between(self, features: np.ndarray, known: np.ndarray,
+                     other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
+        """The per-feature veto between two looks: ``veto``, or the smaller
+        ``flat_veto`` where the hand found both smooth and flat-topped."""
+        if (self._flat_columns is not None
+                and self._flat(np.asarray(features), np.asarray(known, bool))
+                and self._flat(np.asarray(other), np.asarray(other_known, bool))):
+            return self._flat_veto
+        return self._veto
+
     def _flat(self, features: np.ndarray, known: np.ndarray) -> bool:
         assert self._flat_columns is not None
         crease, curvature = self._flat_columns
@@ -284,10 +294,7 @@ class AssociativeMemory:
         nearest = mine[np.argmin(d2[mine])]
         distance = float(np.sqrt(d2[nearest]))
         common = self._known[nearest] & k
-        veto = self._veto
-        if (self._flat_columns is not None and self._flat(x, k)
-                and self._flat(self._exemplars[nearest], self._known[nearest])):
-            veto = self._flat_veto
+        veto = self.veto_between(x, k, self._exemplars[nearest], self._known[nearest])
         vetoed = bool(np.any(np.abs(self._exemplars[nearest] - x)[common] > veto[common]))
         if vetoed:
             self.stats.vetoes += 1
