@@ -241,18 +241,21 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     own looks do: in the extended mode those features count in the distance but never
     veto. A difference in W (or D, H, TH) beyond its veto still turns the look down."""
     from roger_memory.calibration import NO_VETO
-    from roger_memory.config import VIEW_DEPENDENT_FEATURES
+    from roger_memory.config import NEVER_VETO_FEATURES
 
     cfg = MemoryConfig.for_mode("extended")
     names = feature_names("extended")
     known = np.ones(len(names), bool)
     x = np.full(len(names), 0.4)
     assert {n for n, v in zip(names, cfg.veto, strict=True) if v >= NO_VETO} == {
-        *VIEW_DEPENDENT_FEATURES}
+        *NEVER_VETO_FEATURES}
     # Each offset lies beyond the feature's old (one-look) veto: I1 0.148, S3 0.212,
     # O 0.564, W 0.037, D 0.031; alone it stays within the acceptance distance.
+    # TC (a crease the probes can miss) never vetoes either; TK, measured on smooth
+    # surfaces, does.
     for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
-                                 ("W", 0.045, True), ("D", 0.035, True)):
+                                 ("TC", 0.5, False), ("W", 0.045, True), ("D", 0.035, True),
+                                 ("TK", 0.3, True)):
         memory = AssociativeMemory(cfg, seed=3)
         memory.store(x, known)
         q = x.copy()

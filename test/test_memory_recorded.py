@@ -32,7 +32,7 @@ from roger_memory.config import (
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
     FLAT_VETO_FEATURES,
-    VIEW_DEPENDENT_FEATURES,
+    NEVER_VETO_FEATURES,
     MemoryConfig,
 )
 from roger_memory.memory import AssociativeMemory
@@ -102,7 +102,7 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     cal, scores = choose_z_cap(x, known,
                                np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
                                np.array([q.entry for q in rows]),
-                               vetoing=np.array([n not in VIEW_DEPENDENT_FEATURES
+                               vetoing=np.array([n not in NEVER_VETO_FEATURES
                                                  for n in names]),
                                flat=flat,
                                flat_vetoing=np.array([n in FLAT_VETO_FEATURES for n in names]))
