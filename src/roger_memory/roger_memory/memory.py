@@ -142,8 +142,9 @@ class AssociativeMemory:
         return self._config
 
     def reconfigure(self, config: MemoryConfig) -> None:
-        """Take a new configuration that differs only in fields marked live (the veto and
-        ``identify_share``, read per request); the next decision uses it.
+        """Take a new configuration that differs only in fields marked live (the vetoes,
+        the flat-top veto's thresholds and ``identify_share``, read per request); the next
+        decision uses it.
 
         Raises:
             ValueError: Another field differs (it shaped the network: restart to change).
