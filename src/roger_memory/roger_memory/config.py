@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02580, 0.03801, 0.04662, 0.00513, 0.00562, 0.00533,
-    0.02747, 0.02287, 0.02046, 0.00434, 0.01024, 0.02610,
-    0.02435, 0.00123, 0.00530, 0.02465)
+    0.02548, 0.03774, 0.04669, 0.00510, 0.00559, 0.00530,
+    0.02802, 0.02332, 0.02089, 0.00441, 0.01028, 0.02627,
+    0.01632, 0.00122, 0.00507, 0.02485)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.677, 1.293, 1.096, 0.584, 0.499, 0.529,
-    0.500, 0.458, 0.242, 1.891, 3.321, 0.626,
-    1.636, 0.776, 0.426, 0.446)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.26
+    1.644, 1.264, 1.064, 0.574, 0.490, 0.521,
+    0.465, 0.424, 0.213, 1.822, 3.224, 0.602,
+    2.045, 0.761, 0.461, 0.425)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.49
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -80,9 +80,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0347, 0.0394, 0.2238,
-    1.0, 0.0126, 0.2362, 1.0)
-EXTENDED_NOISE_DOF: float = 4.63
+    1.0, 1.0, 1.0, 0.0370, 0.0396, 0.2278,
+    1.0, 0.0126, 0.2284, 1.0)
+EXTENDED_NOISE_DOF: float = 3.85
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -97,12 +97,12 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O",)
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.1063, 1.0, 1.0, 1.0)
-#: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
+    0.0843, 1.0, 1.0, 1.0)
+#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.0
+EXTENDED_Z_CAP: float = 5.5
 
 
 @dataclass(frozen=True)

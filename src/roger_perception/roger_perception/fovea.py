@@ -11,6 +11,10 @@ at 192 px, 3.3 times the retina's resolution), as primate and iCub eyes have a f
    edge is the strongest vertical intensity step within two retina pixels of the
    silhouette's top, to a tenth of a fovea pixel (a parabola through the peak). Columns
    whose step is under half the median step (a neighbour's edge, the ground) are dropped.
+   The outline is the longest run of columns whose edge continues: no jump over
+   ``MAX_STEP_PX`` a column, and no more than two retina pixels of dropped columns (a
+   steep stretch, such as a box's edge that points at the eye, steps mostly across the
+   columns). It must cover ``WHOLE`` of the silhouette's width.
 2. **The cylinder hypothesis.** A vertical cylinder's top rim, seen from the eye, projects
    to an ellipse whose shape the known camera geometry gives: a horizontal circle around
    the ROI's stereo position, projected into the fovea and scaled to the outline's width.
@@ -132,9 +136,13 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     cols, top = cols[keep], np.asarray(tops)[keep]
     if cols.size < MIN_COLUMNS:
         return None
-    # The longest run of neighbouring columns whose edge continues (a merged neighbour's
-    # outline, or a stretch of ground edge, breaks it).
-    breaks = np.flatnonzero((np.diff(cols) > 2) | (np.abs(np.diff(top)) > MAX_STEP_PX)) + 1
+    # The longest run of columns whose edge continues (a merged neighbour's outline, or a
+    # stretch of ground edge, breaks it). Where the outline is steep, as at a box's corner
+    # whose edge points at the eye, its step is mostly across the columns, and those columns
+    # fall under the strength test: the run continues over up to two retina pixels of them
+    # when the edge's rise across them is no steeper than MAX_STEP_PX a column.
+    gap = np.diff(cols)
+    breaks = np.flatnonzero((gap > reach) | (np.abs(np.diff(top)) > MAX_STEP_PX * gap)) + 1
     runs = np.split(np.arange(cols.size), breaks)
     run = max(runs, key=len)
     # The outline must be seen whole: against a neighbour of its own grey, or behind
