@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02548, 0.03774, 0.04669, 0.00510, 0.00559, 0.00530,
-    0.02802, 0.02332, 0.02089, 0.00441, 0.01028, 0.02627,
-    0.01632, 0.00122, 0.00507, 0.02485)
+    0.02572, 0.03794, 0.04665, 0.00514, 0.00560, 0.00531,
+    0.02776, 0.02314, 0.02073, 0.00440, 0.01025, 0.02613,
+    0.01940, 0.00122, 0.00515, 0.02477)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.644, 1.264, 1.064, 0.574, 0.490, 0.521,
-    0.465, 0.424, 0.213, 1.822, 3.224, 0.602,
-    2.045, 0.761, 0.461, 0.425)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.49
+    1.654, 1.275, 1.078, 0.574, 0.495, 0.525,
+    0.481, 0.438, 0.224, 1.848, 3.268, 0.615,
+    1.871, 0.771, 0.450, 0.433)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -80,9 +80,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0370, 0.0396, 0.2278,
-    1.0, 0.0126, 0.2284, 1.0)
-EXTENDED_NOISE_DOF: float = 3.85
+    1.0, 1.0, 1.0, 0.0353, 0.0395, 0.2242,
+    1.0, 0.0126, 0.2292, 1.0)
+EXTENDED_NOISE_DOF: float = 4.33
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -97,12 +97,12 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O",)
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0843, 1.0, 1.0, 1.0)
-#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
+    0.1025, 1.0, 1.0, 1.0)
+#: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.5
+EXTENDED_Z_CAP: float = 5.0
 
 
 @dataclass(frozen=True)

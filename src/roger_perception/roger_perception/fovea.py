@@ -12,9 +12,10 @@ at 192 px, 3.3 times the retina's resolution), as primate and iCub eyes have a f
    silhouette's top, to a tenth of a fovea pixel (a parabola through the peak). Columns
    whose step is under half the median step (a neighbour's edge, the ground) are dropped.
    The outline is the longest run of columns whose edge continues: no jump over
-   ``MAX_STEP_PX`` a column, and no more than two retina pixels of dropped columns (a
+   ``MAX_STEP_PX`` a column, and across up to two retina pixels of dropped columns (a
    steep stretch, such as a box's edge that points at the eye, steps mostly across the
-   columns). It must cover ``WHOLE`` of the silhouette's width.
+   columns) a slope within that which keeps the outline convex (``bridged``). It must
+   cover ``WHOLE`` of the silhouette's width.
 2. **The cylinder hypothesis.** A vertical cylinder's top rim, seen from the eye, projects
    to an ellipse whose shape the known camera geometry gives: a horizontal circle around
    the ROI's stereo position, projected into the fovea and scaled to the outline's width.
@@ -57,6 +58,8 @@ CENTRAL: float = 0.8
 #: Largest jump of the top edge between neighbouring columns, fovea pixels, within one
 #: outline (an ellipse's end, seen at Roger's declinations, climbs about 2.5 a column).
 MAX_STEP_PX: float = 4.0
+#: Slack of the convexity test across dropped columns (``bridged``), fovea rows a column.
+CONVEX_SLACK: float = 1.0
 #: An edge's step must be this many times the fovea's noise (its median step).
 EDGE_SNR: float = 4.0
 #: Share of the silhouette's width the top outline must cover (else O is unknown).
@@ -139,10 +142,8 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     # The longest run of columns whose edge continues (a merged neighbour's outline, or a
     # stretch of ground edge, breaks it). Where the outline is steep, as at a box's corner
     # whose edge points at the eye, its step is mostly across the columns, and those columns
-    # fall under the strength test: the run continues over up to two retina pixels of them
-    # when the edge's rise across them is no steeper than MAX_STEP_PX a column.
-    gap = np.diff(cols)
-    breaks = np.flatnonzero((gap > reach) | (np.abs(np.diff(top)) > MAX_STEP_PX * gap)) + 1
+    # fall under the strength test: the run continues over them (``bridged``).
+    breaks = np.flatnonzero(~bridged(cols, top, reach)) + 1
     runs = np.split(np.arange(cols.size), breaks)
     run = max(runs, key=len)
     # The outline must be seen whole: against a neighbour of its own grey, or behind
@@ -150,6 +151,38 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     if run.size < MIN_COLUMNS or cols[run[-1]] + 1 - cols[run[0]] < WHOLE * span:
         return None
     return cols[run], top[run]
+
+
+def bridged(cols: np.ndarray, top: np.ndarray, reach: int) -> np.ndarray:
+    """For each pair of neighbouring kept columns, whether the outline continues between
+    them (``top_outline``'s run).
+
+    Next to each other (at most 2 fovea columns apart) it continues when the edge jumps
+    at most ``MAX_STEP_PX``. Across columns the strength test dropped (up to ``reach``, two
+    retina pixels) it continues when the edge's slope across them is at most
+    ``MAX_STEP_PX`` a column and keeps the outline convex: every shape is convex, so its
+    silhouette's top edge turns one way (in image rows, the slope never decreases from left
+    to right). The slope across the gap must lie between the slopes of the kept columns
+    just before and just after it, within ``CONVEX_SLACK``. A neighbour's top met at the
+    outline's end, lower and flatter, turns the other way.
+    """
+    gap = np.diff(cols)
+    rise = np.diff(top)
+    ok = (gap <= 2) & (np.abs(rise) <= MAX_STEP_PX)
+    for i in np.flatnonzero((gap > 2) & (gap <= reach)):
+        slope = rise[i] / gap[i]
+        if abs(slope) > MAX_STEP_PX:
+            continue
+        lo = i
+        while lo > 0 and i - lo < 3 and gap[lo - 1] <= 2:
+            lo -= 1
+        hi = i + 1
+        while hi < cols.size - 1 and hi - (i + 1) < 3 and gap[hi] <= 2:
+            hi += 1
+        before = (top[i] - top[lo]) / (cols[i] - cols[lo]) if lo < i else -math.inf
+        after = (top[hi] - top[i + 1]) / (cols[hi] - cols[i + 1]) if hi > i + 1 else math.inf
+        ok[i] = before - CONVEX_SLACK <= slope <= after + CONVEX_SLACK
+    return ok
 
 
 def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: CameraModel,
