@@ -209,6 +209,27 @@ def test_no_probes_is_the_routine_before_them() -> None:
         assert math.dist(reading.contacts[0].point, position) < 5 * cfg.tactile_noise_m
 
 
+def test_a_probe_held_up_by_another_link_is_given_up_and_the_object_still_weighed() -> None:
+    # Random 8x3 / yaw 10021's layout: the left arm probing a prism 0.95 m out rests its
+    # upper link on a box beside the shoulder during one probe's descent; the hand touches
+    # nothing and the descent waited for the goal's timeout, losing the weight with it.
+    world = parse_world({"name": "held_up", "objects": [
+        {"name": "prism", "shape": "prism", "position": [0.946, 0.071], "size": 0.10,
+         "intensity": 52, "weight": 0.2, "yaw": 1.57},
+        {"name": "box", "shape": "box", "position": [0.325, 0.315], "size": 0.13,
+         "intensity": 54, "weight": 0.8}]}, "test")
+    cfg = SimConfig(weight_noise_kg=0.0)
+    with Simulator(world, cfg, seed=1) as sim:
+        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, (0.925, 0.074, 0.038)))
+        reading = sim.last_haptic
+    assert report.states["left_arm"] == ControllerState.CONVERGED
+    assert reading is not None and reading.contact
+    assert reading.weight == pytest.approx(0.2, abs=0.05)
+    # The first touch and the probes that touched: one was given up.
+    assert 2 <= len(reading.contacts) <= cfg.probe_directions
+    assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
+
+
 def test_tactile_contacts_cross_the_wire() -> None:
     contacts = (TactileContact((0.5, 0.1, 0.3), (0.0, 0.0, 1.0)),
                 TactileContact((0.54, 0.1, 0.29), (0.6, 0.0, 0.8), (0.04, 0.0)))

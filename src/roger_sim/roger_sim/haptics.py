@@ -11,7 +11,9 @@ converged (the probe moves: when it passed, see below):
               up towards ``probe_rise_m`` above the first touch, across to the first touch
               + ``probe_radius_m`` * direction, down at ``touch_speed`` until the hand
               touches something or is ``probe_depth_m`` below the first touch (it fell off
-              the object: nothing recorded); an unreachable probe is skipped. Then back
+              the object: nothing recorded); an unreachable probe is skipped, and so is
+              one whose descent stalls before the hand touches anything (another link
+              of the arm rests on an object: ``PROBE_STALL_S``). Then back
               over the first touch, down at ``touch_speed`` to touch it again, and grasp
     lift      a fixed constraint holds the object (a simulated grasp); lift it
     weigh     hold still: let it settle ``weigh_steps``, then average the lift joint's
@@ -56,6 +58,12 @@ from roger_sim.robot import ARM_REST, HOVER, JOINT_LIMITS, RobotModel, arm_ik
 GRAVITY: float = 9.81
 #: Smallest normal force that counts as a touch, newtons.
 TOUCH_FORCE: float = 0.5
+#: A probe's descent that has not come down ``PROBE_STALL_M`` in this many simulated
+#: seconds, the hand touching nothing, is given up: another link of the arm rests on an
+#: object on the way (a box beside the shoulder on random 8x3 / yaw 10021), and waiting
+#: would run into the goal's timeout and lose the weight with it.
+PROBE_STALL_S: float = 0.1
+PROBE_STALL_M: float = 0.002
 #: Between probe touches the hand glides to this far above the first touch's height (the
 #: expected top) before it comes down at ``touch_speed``, metres.
 PROBE_GLIDE: float = 0.003
@@ -123,6 +131,9 @@ class HapticRoutine:
         self._next_probe = 0
         self._probe = (0.0, 0.0)
         self._probe_planar: tuple[float, float] = (0.0, 0.0)
+        # The lift height and step count when the probe's descent last made progress.
+        self._descent = (math.inf, 0)
+        self._step_count = 0
         # Lift height of the highest touch so far (the first touch's, on a convex top).
         self._top = 0.0
         self._efforts: list[float] = []
@@ -210,6 +221,15 @@ class HapticRoutine:
         self.phase = "return"
         self._go(self._glide_height)
 
+    def _stalled(self, lift: float) -> bool:
+        """True when the lift has not come down ``PROBE_STALL_M`` for ``PROBE_STALL_S``
+        since the descent began (``probe_down`` entered) or last made progress."""
+        height, since = self._descent
+        if lift < height - PROBE_STALL_M:
+            self._descent = (lift, self._step_count)
+            return False
+        return self._step_count - since >= math.ceil(PROBE_STALL_S / self.config.time_step)
+
     def _passed(self, q_arm: np.ndarray) -> bool:
         """Every arm joint within tolerance of the reference, moving or not.
 
@@ -279,6 +299,7 @@ class HapticRoutine:
         """
         if self.done:
             return
+        self._step_count += 1
         state = self.servo.state
         if state == ControllerState.FAILED:
             self._finish()
@@ -335,11 +356,17 @@ class HapticRoutine:
             self._next_probe_or_return()
         elif self.phase == "probe_move" and (converged or self._passed(q_arm)):
             self.phase = "probe_down"
+            self._descent = (float(q_arm[0]), self._step_count)
         elif self.phase == "probe_down":
             bottom = max(self._floor, self._contact_z - self.config.probe_depth_m)
             if self._lower(bottom, self._probe_planar) and converged:
                 # Fell off the object: this probe touched nothing, it records nothing.
                 self._rise(q_arm)
+            elif self._stalled(float(q_arm[0])):
+                # Held up before the hand touched: nothing recorded, on to the next probe
+                # (its height is no touch, so the glide height stays).
+                self.phase = "probe_up"
+                self._go(self._probe_height, planar=self._probe_planar)
         elif self.phase == "return" and (converged or self._passed(q_arm)):
             self.phase = "retouch"
         elif self.phase == "lift" and converged:
