@@ -250,7 +250,7 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     assert {n for n, v in zip(names, cfg.veto, strict=True) if v >= NO_VETO} == {
         *NEVER_VETO_FEATURES}
     # Each offset lies beyond the feature's old (one-look) veto: I1 0.148, S3 0.212,
-    # O 0.564; W's and D's beyond their veto now (0.040, 0.037). Alone each stays within
+    # O 0.564; W's and D's beyond their veto now (0.040, 0.035). Alone each stays within
     # the acceptance distance.
     # TC (a crease the probes can miss) never vetoes either; TK, measured on smooth
     # surfaces, does.
