@@ -13,7 +13,16 @@ import numpy as np
 import pytest
 from conftest import WORLDS
 
-from roger_common.types import WEIGHT_INDEX, Action, Goal, StereoFrame, WorldSpec
+from roger_common.types import (
+    WEIGHT_INDEX,
+    Action,
+    Goal,
+    ObjectSpec,
+    StereoFrame,
+    WorldSpec,
+    feature_names,
+)
+from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world
@@ -216,3 +225,39 @@ def test_table1_same_object_is_closer_to_itself_than_to_others(table1_features) 
     between = [float(np.linalg.norm(first[a] - second[b])) for a in names for b in names
                if a != b]
     assert max(within) < min(between), (within, between)
+
+
+def _brightest_grey(world: WorldSpec, names: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    """(A, I1) of each named object's ROI, looked at in turn (extended mode)."""
+    a_index = feature_names("extended").index("A")
+    out = {}
+    with Simulator(world, seed=0) as sim:
+        for i, name in enumerate(names):
+            spec = next(o for o in world.objects if o.name == name)
+            frame = sim.run_goal(Goal(i + 1, Action.ATTENTION_SHIFT,
+                                      (*spec.position, 0.05)))[1]
+            perception = Perception(PerceptionConfig(features="extended"))
+            rois = perception.process(frame)
+            k = frame.label_names.index(name)
+            best = max(rois, key=lambda r: int(np.sum(
+                frame.left_labels[perception.last_roi_labels == r.roi_id + 1] == k)))
+            assert best.known[a_index], name
+            out[name] = (float(best.features[a_index]), float(best.features[0]))
+    return out
+
+
+def test_a_flat_tops_brightest_grey_is_the_same_wherever_it_stands() -> None:
+    """A (the brightest surface's grey) of three boxes of one grey at three places and yaws
+    agrees to within a third of what one Table-1 step of grey (100 -> 115) moves it: the
+    flat top is lit alike under the one light wherever it stands. (The paper's rim
+    contrast I1 of the same looks is printed on failure, for comparison.)"""
+    boxes = (("b0", (0.45, 0.35), 0.0, 100.0), ("b1", (0.75, -0.1), 0.7, 100.0),
+             ("b2", (0.55, -0.45), 1.4, 100.0), ("bright", (0.8, 0.4), 0.3, 115.0))
+    world = WorldSpec(objects=tuple(
+        ObjectSpec(name=n, shape="box", position=p, size=0.1, intensity=g, weight=1.0,
+                   yaw=y) for n, p, y, g in boxes), name="flat_tops")
+    seen = _brightest_grey(world, tuple(b[0] for b in boxes))
+    copies = [seen[n][0] for n in ("b0", "b1", "b2")]
+    step = seen["bright"][0] - float(np.mean(copies))
+    assert step > 0.02, seen
+    assert max(copies) - min(copies) < step / 3, seen

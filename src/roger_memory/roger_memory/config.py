@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02572, 0.03794, 0.04665, 0.00514, 0.00560, 0.00531,
-    0.02776, 0.02314, 0.02073, 0.00440, 0.01025, 0.02613,
-    0.01940, 0.00122, 0.00515, 0.02477)
+    0.02642, 0.03890, 0.04773, 0.00521, 0.00563, 0.00529,
+    0.02963, 0.02497, 0.02267, 0.00456, 0.01043, 0.02720,
+    0.01972, 0.01415, 0.00124, 0.00517, 0.02480)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.654, 1.275, 1.078, 0.574, 0.495, 0.525,
-    0.481, 0.438, 0.224, 1.848, 3.268, 0.615,
-    1.871, 0.771, 0.450, 0.433)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.34
+    1.605, 1.233, 1.040, 0.565, 0.482, 0.522,
+    0.406, 0.349, 0.127, 1.785, 3.211, 0.565,
+    1.830, 1.663, 0.747, 0.441, 0.427)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.45
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -61,8 +61,10 @@ EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 #: do, and a veto measured on those looks turned copies away (docs/memory.md, "Only
 #: view-invariant features veto"). They still count in every distance, capped; only
 #: D, W and the 3-D and touch features (H, TH, TK, TC) may veto.
+#: A (the brightest surface's grey) is view dependent for a sphere and a prism (their
+#: brightest visible surface turns with bearing and yaw), not for a flat top.
 VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
-                                            "S1", "S2", "S3", "O")
+                                            "S1", "S2", "S3", "O", "A")
 #: Touch features whose reading can miss what it measures: a haptic reading whose probes
 #: all stay on one flank of a prism finds no crease (TC 0, where the prism's other
 #: readings give 1; the median outvotes it once the object has been touched three
@@ -80,29 +82,31 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0353, 0.0395, 0.2242,
-    1.0, 0.0126, 0.2292, 1.0)
-EXTENDED_NOISE_DOF: float = 4.33
+    1.0, 1.0, 1.0, 0.0375, 0.0397, 0.2333,
+    1.0, 1.0, 0.0231, 0.2143, 1.0)
+EXTENDED_NOISE_DOF: float = 3.95
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
 #: box reads 0.15-0.2 at every yaw), unlike a prism's (its ridge turns with the yaw) or a
 #: sphere's (its outline against the rim's ellipse changes with the declination), and it
 #: is the one feature that parts a box from a cylinder of one size, grey and weight
-#: (docs/memory.md, "The outline vetoes between flat tops").
-FLAT_VETO_FEATURES: tuple[str, ...] = ("O",)
+#: (docs/memory.md, "The outline vetoes between flat tops"). And A: a flat top's grey
+#: under the one light is the same from every place (docs/perception.md, "The brightest
+#: surface's grey").
+FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
 #: The extended mode's veto between two flat looks: NO_VETO (1.0) but for
 #: FLAT_VETO_FEATURES, calibrated on the same looks (``calibration.calibrate``'s
 #: ``flat_veto``).
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.1025, 1.0, 1.0, 1.0)
+    0.1101, 0.1003, 1.0, 1.0, 1.0)
 #: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.0
+EXTENDED_Z_CAP: float = 5.5
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,7 @@ from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
 from roger_perception.segmentation import window_boxes
-from roger_perception.shape import top_height, visual_features
+from roger_perception.shape import top_brightness, top_height, visual_features
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities_batch,
@@ -71,6 +71,8 @@ from roger_perception.stereo import (
 
 #: Names of the stages timed in ``Perception.last_timings``.
 STAGES: tuple[str, ...] = ("log", "segment", "match", "features", "activation")
+#: Index of A (the brightest surface's grey) among the extended features.
+_A: int = SHAPE_FEATURE_NAMES.index("A")
 
 
 class Perception:
@@ -266,7 +268,7 @@ class Perception:
                 position: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
         """The paper's eleven features followed by the shape evidence of ``shape.py``.
 
-        H is unknown where I is (too little of the outline is the object's own edge, or
+        H and A are unknown where I is (too little of the outline is the object's own edge, or
         the retina's edge cuts it: its top may be another object's). O is measured, under
         the same condition, on the fovea of a visual improvement, for the ROI the eye
         fixates (``fovea.fixated``), and kept at the object's position
@@ -280,6 +282,9 @@ class Perception:
                                               frame.left_pose, position))
             if math.isfinite(h):
                 extra[0], extra_known[0] = h, True
+            a = top_brightness(frame.left, blob.mask, blob.bbox)
+            if math.isfinite(a):
+                extra[_A], extra_known[_A] = a, True
             if frame.fovea is not None and frame.fovea_camera is not None \
                     and fixated(blob.mask, blob.bbox, frame.camera):
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:

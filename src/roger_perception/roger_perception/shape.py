@@ -16,6 +16,20 @@ known eye pose, never the simulator's objects):
   vertical (sphere, cylinder) nothing of it depends on yaw; for a box it grows by at most
   ``(sqrt 2 - 1) size / 2 tan(declination)`` between yaw 0 and 45 degrees.
 
+* ``A``: the grey of the brightest surface the eye sees: the 90th percentile of the ROI's
+  pixels in the left retina, each the mean of its 3 x 3 neighbourhood (the pixel noise
+  over 3, so that a look of one exposure and one of several read alike). Under the one
+  directional light a surface's grey is its albedo times ``ambient + diffuse (n . l)``:
+  it changes with the normal n, not with where the surface stands. The brightest
+  surface of a box or a cylinder is its flat top (n up, the light from above), lit the
+  same at every place and yaw, so copies of one flat-topped category read alike
+  (boxes 77/77/77, 99/100/99, 106/107/107 in 255ths on yaw and random worlds 10021-10022)
+  where the paper's rim contrast I, measured on the silhouette whose normals turn with
+  the bearing, differs by 4-5 category scales. A sphere's and a prism's brightest
+  visible surface turns with bearing and yaw (spheres 75-89, prisms 76-101), so A is
+  view dependent for them: it never vetoes but between two flat tops (the memory's
+  ``FLAT_VETO_FEATURES``).
+
 Three more visual measurements were built, measured and dropped (docs/perception.md,
 "Extended features"): the silhouette's metric height over width (R), how far it reaches
 above the top (E) and the median shading gradient (G). Between categories that differ only
@@ -162,6 +176,29 @@ def top_height(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: Camera
     cols = np.unique(us[near])
     return float(np.median([height_over_axis(camera, pose, c + 0.5, top, p[:2])
                             for c in cols]))
+
+
+def top_brightness(image: np.ndarray, mask: np.ndarray,
+                   bbox: tuple[int, int, int, int]) -> float:
+    """``A`` of one ROI in [0, 1] (module docstring); NaN for an empty mask.
+
+    Args:
+        image: The left retina, intensities in [0, 1].
+        mask: The ROI's silhouette inside ``bbox``.
+        bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
+    """
+    if not mask.any():
+        return math.nan
+    u0, v0, u1, v1 = bbox
+    h, w = image.shape[:2]
+    # One pixel of context on each side so the 3 x 3 mean at the mask's edge is whole.
+    a0, b0, a1, b1 = max(0, u0 - 1), max(0, v0 - 1), min(w, u1 + 1), min(h, v1 + 1)
+    crop = np.asarray(image[b0:b1, a0:a1], np.float32)
+    padded = np.pad(crop, 1, mode="edge")
+    mean = sum(padded[dv:dv + crop.shape[0], du:du + crop.shape[1]]
+               for dv in range(3) for du in range(3)) / 9.0
+    inner = mean[v0 - b0:v0 - b0 + mask.shape[0], u0 - a0:u0 - a0 + mask.shape[1]]
+    return _unit(float(np.percentile(inner[mask.astype(bool)], 90)))
 
 
 def visual_features(z_over: float) -> tuple[float]:
