@@ -102,7 +102,7 @@ EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     0.1101, 0.1003, 1.0, 1.0, 1.0)
-#: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
+#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").

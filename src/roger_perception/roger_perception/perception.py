@@ -62,7 +62,7 @@ from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
 from roger_perception.segmentation import window_boxes
-from roger_perception.shape import top_brightness, top_height, visual_features
+from roger_perception.shape import smoothed_grey, top_brightness, top_height, visual_features
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities_batch,
@@ -96,6 +96,8 @@ class Perception:
         self.fovea_looks = FoveaLooks(self.config.haptic_radius_m)
         #: The last fovea's steps (``fovea.fovea_steps``), computed once for its ROIs.
         self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
+        #: The last left retina and its 3 x 3 mean (``shape.smoothed_grey``), for A.
+        self._smoothed: tuple[np.ndarray, np.ndarray] | None = None
         self._previous_view: MotionView | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
@@ -282,7 +284,9 @@ class Perception:
                                               frame.left_pose, position))
             if math.isfinite(h):
                 extra[0], extra_known[0] = h, True
-            a = top_brightness(frame.left, blob.mask, blob.bbox)
+            if self._smoothed is None or self._smoothed[0] is not frame.left:
+                self._smoothed = (frame.left, smoothed_grey(frame.left))
+            a = top_brightness(self._smoothed[1], blob.mask, blob.bbox)
             if math.isfinite(a):
                 extra[_A], extra_known[_A] = a, True
             if frame.fovea is not None and frame.fovea_camera is not None \

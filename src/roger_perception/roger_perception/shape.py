@@ -107,6 +107,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from roger_common.geometry import camera_ray, project_point
@@ -178,27 +179,26 @@ def top_height(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: Camera
                             for c in cols]))
 
 
-def top_brightness(image: np.ndarray, mask: np.ndarray,
+def smoothed_grey(image: np.ndarray) -> np.ndarray:
+    """Each pixel of the retina the mean of its 3 x 3 neighbourhood (edges replicated): the
+    image ``top_brightness`` reads, computed once per frame."""
+    return cv2.blur(np.asarray(image, np.float32), (3, 3), borderType=cv2.BORDER_REPLICATE)
+
+
+def top_brightness(smoothed: np.ndarray, mask: np.ndarray,
                    bbox: tuple[int, int, int, int]) -> float:
     """``A`` of one ROI in [0, 1] (module docstring); NaN for an empty mask.
 
     Args:
-        image: The left retina, intensities in [0, 1].
+        smoothed: The left retina, intensities in [0, 1], through ``smoothed_grey``.
         mask: The ROI's silhouette inside ``bbox``.
         bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
     """
-    if not mask.any():
-        return math.nan
     u0, v0, u1, v1 = bbox
-    h, w = image.shape[:2]
-    # One pixel of context on each side so the 3 x 3 mean at the mask's edge is whole.
-    a0, b0, a1, b1 = max(0, u0 - 1), max(0, v0 - 1), min(w, u1 + 1), min(h, v1 + 1)
-    crop = np.asarray(image[b0:b1, a0:a1], np.float32)
-    padded = np.pad(crop, 1, mode="edge")
-    mean = sum(padded[dv:dv + crop.shape[0], du:du + crop.shape[1]]
-               for dv in range(3) for du in range(3)) / 9.0
-    inner = mean[v0 - b0:v0 - b0 + mask.shape[0], u0 - a0:u0 - a0 + mask.shape[1]]
-    return _unit(float(np.percentile(inner[mask.astype(bool)], 90)))
+    values = smoothed[v0:v1, u0:u1][mask.astype(bool)]
+    if values.size == 0:
+        return math.nan
+    return _unit(float(np.percentile(values, 90)))
 
 
 def visual_features(z_over: float) -> tuple[float]:
