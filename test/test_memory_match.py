@@ -301,6 +301,43 @@ def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -
     assert all(v >= 1.0 for v in paper.flat_veto)
 
 
+def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> None:
+    """A prism's outline O turns with its yaw (0.2-0.85): between two looks whose touches
+    crossed a crease (TC >= flat_crease) O is left out of the distance, in the network
+    and in the memory's own distance alike; between a creased and an uncreased look, or
+    two uncreased ones, it counts."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    o, tc, tk = names.index("O"), names.index("TC"), names.index("TK")
+    assert cfg.creased_unused == ("O",)
+    known = np.ones(len(names), bool)
+    x = np.full(len(names), 0.4)
+    x[tk], x[o] = 0.0, 0.2
+    far = 0.2 + 5.5 * np.sqrt(2.0) * cfg.feature_scale[o]  # O at the cap: the most it adds
+    results = {}
+    for crease_stored, crease_query in ((1.0, 1.0), (1.0, 0.3), (0.3, 0.3)):
+        memory = AssociativeMemory(cfg, seed=3)
+        stored = x.copy()
+        stored[tc] = crease_stored
+        memory.store(stored, known)
+        q = x.copy()
+        q[tc], q[o] = crease_query, far
+        same_o = q.copy()
+        same_o[o] = 0.2
+        results[(crease_stored, crease_query)] = (
+            float(memory.distances(q, known)[0]), float(memory.distances(same_o, known)[0]),
+            memory.decide(q, known, final_trial=True).distance)
+    both, one, none = results[(1.0, 1.0)], results[(1.0, 0.3)], results[(0.3, 0.3)]
+    # Both creased: O's difference adds nothing (the memory's distance and the network's).
+    assert both[0] == pytest.approx(both[1], abs=1e-6)
+    assert both[2] == pytest.approx(both[0], rel=0.05, abs=0.05)
+    # One or neither creased: O counts.
+    assert one[0] > one[1] + 0.5 and none[0] > none[1] + 0.5
+    assert one[2] > both[2] + 0.5 and none[2] > both[2] + 0.5
+    # The paper mode has no crease to read.
+    assert MemoryConfig.for_mode("paper").creased_unused == ()
+
+
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:
     x = _distinct_patterns(2, seed=16)
     rng = np.random.default_rng(6)

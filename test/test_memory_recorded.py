@@ -23,7 +23,7 @@ from roger_common.types import (
     feature_names,
 )
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
-from roger_memory.calibration import calibrate, choose_z_cap, flat_looks
+from roger_memory.calibration import calibrate, choose_z_cap, creased_looks, flat_looks
 from roger_memory.config import (
     CALIBRATED,
     CALIBRATED_FEATURE_SCALE,
@@ -97,6 +97,8 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     names = feature_names("extended")
     x, known = np.stack([q.features for q in rows]), np.stack([q.known for q in rows])
     defaults = MemoryConfig.for_mode("extended")
+    ext_unused = defaults.creased_unused
+    assert ext_unused == ("O",)
     flat = flat_looks(x, known, names.index("TC"), names.index("TK"), defaults.flat_crease,
                       defaults.flat_curvature)
     cal, scores = choose_z_cap(x, known,
@@ -105,7 +107,10 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
                                vetoing=np.array([n not in NEVER_VETO_FEATURES
                                                  for n in names]),
                                flat=flat,
-                               flat_vetoing=np.array([n in FLAT_VETO_FEATURES for n in names]))
+                               flat_vetoing=np.array([n in FLAT_VETO_FEATURES for n in names]),
+                               creased=creased_looks(x, known, names.index("TC"),
+                                                     defaults.flat_crease),
+                               creased_unused=np.array([n in ext_unused for n in names]))
     ext = CALIBRATED[FeatureMode.EXTENDED]
     # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
     assert 0.2 < flat.mean() < 0.6

@@ -116,6 +116,37 @@ def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
             & (x[:, curvature_index] < curvature_max))
 
 
+def creased_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
+                  crease_min: float) -> np.ndarray:
+    """Looks whose object the hand found creased: the crease (TC) known and at least
+    ``crease_min`` (the touches crossed a prism's ridge or an edge).
+
+    Returns:
+        (n,) bool.
+    """
+    x = np.asarray(features, np.float64)
+    k = np.asarray(known, bool)
+    return k[:, crease_index] & (x[:, crease_index] >= crease_min)
+
+
+def uncreased_common(common: np.ndarray, creased_a: np.ndarray, creased_b: np.ndarray,
+                     unused: np.ndarray | None) -> np.ndarray:
+    """The common-feature mask of pairs of looks with the features of ``unused`` left out
+    where both looks of a pair are creased (``creased_looks``): a creased object's outline
+    turns with its yaw, so between two of them it says nothing of the category
+    (MemoryConfig.creased_unused).
+
+    Args:
+        common: (n, F) features known in both looks of each pair.
+        creased_a, creased_b: (n,) whether each pair's first and second look is creased.
+        unused: (F,) features to leave out between two creased looks (None: none).
+    """
+    if unused is None or not np.any(unused):
+        return common
+    both = np.asarray(creased_a, bool) & np.asarray(creased_b, bool)
+    return common & ~(both[:, None] & np.asarray(unused, bool)[None, :])
+
+
 def rms_z(delta: np.ndarray, common: np.ndarray, scale: np.ndarray,
           weight: np.ndarray | None = None, z_cap: float = 0.0) -> np.ndarray:
     """Weighted root-mean-square z over the common features:
@@ -208,7 +239,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
               outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
               max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0,
               vetoing: np.ndarray | None = None, flat: np.ndarray | None = None,
-              flat_vetoing: np.ndarray | None = None) -> Calibration:
+              flat_vetoing: np.ndarray | None = None, creased: np.ndarray | None = None,
+              creased_unused: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -239,6 +271,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
             None: none).
         flat_vetoing: (F,) features that veto between two flat looks
             (``Calibration.flat_veto``; None: none).
+        creased: (n,) looks whose object the hand found creased (``creased_looks``;
+            None: none).
+        creased_unused: (F,) features left out of every pair of two creased looks, as
+            the memory leaves them out (``uncreased_common``; None: none).
 
     Returns:
         The Calibration.
@@ -246,7 +282,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
     Raises:
         ValueError: Too few pairs of either kind to estimate a scale.
     """
-    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat)
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
+               creased, creased_unused)
     return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing,
                    flat_vetoing)
 
@@ -264,7 +301,8 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  identify_quantile: float = 0.95, veto_quantile: float = 0.999,
                  outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
                  max_pairs: int = 400_000, seed: int = 0, vetoing: np.ndarray | None = None,
-                 flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None
+                 flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None,
+                 creased: np.ndarray | None = None, creased_unused: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -277,12 +315,14 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
-    ``vetoing``, ``flat`` and ``flat_vetoing`` as ``calibrate``'s.
+    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased`` and ``creased_unused`` as
+    ``calibrate``'s.
 
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
-    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat)
+    fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
+               creased, creased_unused)
     scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
                              min_common, cap)
               for cap in caps}
@@ -325,7 +365,8 @@ class _Fit:
 
 def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
          outlier_share: float, iterations: int, max_pairs: int, seed: int,
-         flat: np.ndarray | None = None) -> _Fit:
+         flat: np.ndarray | None = None, creased: np.ndarray | None = None,
+         creased_unused: np.ndarray | None = None) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
     scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
@@ -341,13 +382,14 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
     i1, j1 = _pairs(run, entry, False, max_pairs, rng)
     if len(i0) < 50 or len(i1) < 50:
         raise ValueError(f"too few pairs: {len(i0)} same-entry, {len(i1)} between entries")
-    d0, c0 = x[i0] - x[j0], k[i0] & k[j0]
+    cr = np.zeros(len(x), bool) if creased is None else np.asarray(creased, bool)
+    d0, c0 = x[i0] - x[j0], uncreased_common(k[i0] & k[j0], cr[i0], cr[j0], creased_unused)
     entry_scale = _robust_scale(d0, c0)
     if not np.all(np.isfinite(entry_scale)):
         raise ValueError("some feature is never known in two looks of one entry")
     entry_scale = np.maximum(entry_scale, 1e-4)
 
-    d1, c1 = x[i1] - x[j1], k[i1] & k[j1]
+    d1, c1 = x[i1] - x[j1], uncreased_common(k[i1] & k[j1], cr[i1], cr[j1], creased_unused)
     a1 = np.abs(d1)
     feat = np.arange(n_feat)[None, :]
     bins = np.clip(np.searchsorted(_EDGES, a1, side="right") - 1, 0, len(_EDGES) - 2)

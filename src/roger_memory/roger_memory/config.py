@@ -46,13 +46,13 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02642, 0.03890, 0.04773, 0.00521, 0.00563, 0.00529,
-    0.02963, 0.02497, 0.02267, 0.00456, 0.01043, 0.02720,
-    0.01972, 0.01415, 0.00124, 0.00517, 0.02480)
+    0.02647, 0.03903, 0.04784, 0.00521, 0.00563, 0.00529,
+    0.02960, 0.02494, 0.02262, 0.00456, 0.01043, 0.02716,
+    0.01962, 0.01417, 0.00124, 0.00514, 0.02474)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.605, 1.233, 1.040, 0.565, 0.482, 0.522,
-    0.406, 0.349, 0.127, 1.785, 3.211, 0.565,
-    1.830, 1.663, 0.747, 0.441, 0.427)
+    1.603, 1.229, 1.038, 0.565, 0.482, 0.522,
+    0.407, 0.350, 0.129, 1.786, 3.212, 0.566,
+    1.832, 1.662, 0.742, 0.446, 0.429)
 EXTENDED_IDENTIFY_DISTANCE: float = 2.45
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
@@ -82,8 +82,8 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0375, 0.0397, 0.2333,
-    1.0, 1.0, 0.0231, 0.2143, 1.0)
+    1.0, 1.0, 1.0, 0.0375, 0.0397, 0.2330,
+    1.0, 1.0, 0.0232, 0.2133, 1.0)
 EXTENDED_NOISE_DOF: float = 3.95
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
@@ -102,6 +102,13 @@ EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     0.1101, 0.1003, 1.0, 1.0, 1.0)
+#: The features left out of the distance between two looks whose touches crossed a
+#: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
+#: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
+#: nothing of its category between two of them, where between a box and a cylinder it is
+#: the one feature that parts them (docs/memory.md, "The outline between two creased
+#: looks").
+CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O",)
 #: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
@@ -176,6 +183,10 @@ class MemoryConfig:
             touched).
         flat_curvature: Largest curvature TK of a flat top (a sphere reads 0.3-0.8, a box's
             or cylinder's top under 0.05).
+        creased_unused: Features left out of the distance between two looks whose touches
+            found a crease (TC >= ``flat_crease``, known in both; extended mode: O, which
+            turns with a prism's yaw; () in the paper mode, which has no crease; () in the
+            extended mode turns the rule off). Everywhere else they count.
         min_common_features: Fewest features known both in the query and in a stored look
             for that look's unit to answer.
         identify_share: Smallest winner-take-all share of the winning address for a
@@ -230,6 +241,8 @@ class MemoryConfig:
         "doc": "Largest touch crease TC of a smooth top (flat_veto)", "live": True})
     flat_curvature: float = field(default=0.2, metadata={
         "doc": "Largest touch curvature TK of a flat top (flat_veto)", "live": True})
+    creased_unused: tuple[str, ...] = field(default=CREASED_UNUSED_FEATURES, metadata={
+        "doc": "Features left out between two creased looks (names of the mode's features)"})
     min_common_features: int = field(default=6, metadata={
         "doc": "Fewest common known features for a stored look to answer"})
     identify_share: float = field(default=0.5, metadata={
@@ -272,6 +285,10 @@ class MemoryConfig:
             _fail("features", self.features, str(exc))
         object.__setattr__(self, "features", mode.value)
         object.__setattr__(self, "maskable_features", tuple(self.maskable_features))
+        object.__setattr__(self, "creased_unused", tuple(self.creased_unused))
+        if mode is FeatureMode.PAPER and self.creased_unused == CREASED_UNUSED_FEATURES:
+            # The default names the extended mode's features; the paper mode has no crease.
+            object.__setattr__(self, "creased_unused", ())
         self._take_calibration(mode)
         names = feature_names(mode)
         # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
@@ -289,6 +306,10 @@ class MemoryConfig:
         for name in self.maskable_features:
             if name not in names:
                 _fail("maskable_features", self.maskable_features, f"names in {names}")
+        for name in self.creased_unused:
+            if name not in names or "TC" not in names:
+                _fail("creased_unused", self.creased_unused,
+                      f"names in {names}, in a mode with the crease TC")
         if sum(self.feature_weight) <= 0:
             _fail("feature_weight", self.feature_weight, "not every weight 0")
         _positive("identify_distance", self.identify_distance)

@@ -47,7 +47,7 @@ from roger_common.types import (
     feature_dim,
     feature_names,
 )
-from roger_memory.calibration import flat_looks, rms_z
+from roger_memory.calibration import creased_looks, flat_looks, rms_z, uncreased_common
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -161,6 +161,11 @@ class AssociativeMemory:
         self._flat_columns = ((names.index("TC"), names.index("TK"))
                               if "TC" in names and "TK" in names
                               and np.any(self._flat_veto < self._veto) else None)
+        # Between two creased looks the features of creased_unused count not.
+        unused = np.array([n in config.creased_unused for n in names])
+        self._crease_gate = ((names.index("TC"), config.flat_crease, unused)
+                             if "TC" in names and unused.any() else None)
+        self._network.set_crease_gate(*(self._crease_gate or (None, 0.0, None)))
 
     def veto_between(self, features: np.ndarray, known: np.ndarray,
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
@@ -228,7 +233,7 @@ class AssociativeMemory:
         x, k = _validate(features, known, self._dim, self._config.features)
         d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
                    self._config.min_common_features, self._config.feature_weight,
-                   self._config.z_cap)
+                   self._config.z_cap, self._crease_gate)
         out = np.full(self.size, np.inf)
         np.minimum.at(out, self._addresses, d)
         return out
@@ -482,7 +487,7 @@ class AssociativeMemory:
             # edge). One copy is kept.
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
-                       self._config.feature_weight, self._config.z_cap)[0]
+                       self._config.feature_weight, self._config.z_cap, self._crease_gate)[0]
             if d <= self._config.identify_distance and not any(
                     np.array_equal(ck, ok) and np.array_equal(cx, ox)
                     for ox, ok in (*kept, (x, k))):
@@ -517,7 +522,7 @@ class AssociativeMemory:
             if self.find_exact(fx, fk) is not None:
                 continue
             d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features, cfg.feature_weight,
-                       cfg.z_cap)
+                       cfg.z_cap, self._crease_gate)
             if d.size and d.min() <= cfg.identify_distance:
                 self._append(address, fx[None], fk[None], stored=False)
                 added += 1
@@ -554,11 +559,17 @@ class AssociativeMemory:
 
 
 def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: np.ndarray,
-           min_common: int, weight: tuple[float, ...], z_cap: float = 0.0) -> np.ndarray:
+           min_common: int, weight: tuple[float, ...], z_cap: float = 0.0,
+           crease_gate: tuple[int, float, np.ndarray] | None = None) -> np.ndarray:
     """Weighted RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2)
     scale_f): sqrt(sum w_f z_f^2 / sum w_f); inf with fewer than ``min_common`` common
-    features (or none of positive weight)."""
+    features (or none of positive weight). ``crease_gate`` (crease column, least crease,
+    features): those features are left out where both looks are creased."""
     common = ks & k
+    if crease_gate is not None:
+        col, least, unused = crease_gate
+        common = uncreased_common(common, creased_looks(xs, ks, col, least),
+                                  np.full(len(xs), bool(k[col] and x[col] >= least)), unused)
     n = common.sum(axis=1)
     d = rms_z(xs - x, common, scale, np.asarray(weight), z_cap)
     return np.where(n >= min_common, d, np.inf)

@@ -150,6 +150,20 @@ class AssociativeNetwork(nn.Module):
         self.stored: torch.Tensor
         self.unit_known: torch.Tensor
         self.unit_address: torch.Tensor
+        #: Between an input and a unit whose looks both found a crease (column, least
+        #: value), the features of the mask count not (MemoryConfig.creased_unused;
+        #: ``set_crease_gate``). None: every common feature counts.
+        self.crease_gate: tuple[int, float, torch.Tensor] | None = None
+
+    def set_crease_gate(self, crease_index: int | None, crease_min: float,
+                        unused: np.ndarray | None) -> None:
+        """Leave the features of ``unused`` out between two looks whose crease (column
+        ``crease_index``) is known and at least ``crease_min`` (None or no feature: off)."""
+        if crease_index is None or unused is None or not np.any(unused):
+            self.crease_gate = None
+        else:
+            self.crease_gate = (int(crease_index), float(crease_min),
+                                torch.from_numpy(np.asarray(unused, bool).copy()))
 
     @property
     def n_addresses(self) -> int:
@@ -220,6 +234,7 @@ class AssociativeNetwork(nn.Module):
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
         net.unit_address = self.unit_address.clone()
+        net.crease_gate = self.crease_gate
         _fill(net.stored, generator, 0.0, 1.0)
         _fill(net.log_scale.data, generator, -0.1, 0.1)
         _fill(net.log_tau.data, generator, -0.1, 0.1)
@@ -241,18 +256,28 @@ class AssociativeNetwork(nn.Module):
         kf = k.to(x.dtype)
         m = self.unit_known.to(x.dtype)
         c = self.centres * m
-        if self.z_cap > 0:
-            # Each feature's z^2 capped (a robust distance): one feature per pair of
-            # inputs and units, since the cap does not factor into products.
+        if self.z_cap > 0 or self.crease_gate is not None:
+            # Each feature's z^2 capped (a robust distance), or some left out between two
+            # creased looks: one feature per pair of inputs and units, since neither
+            # factors into products.
             z2 = (x[:, None, :] - c[None, :, :]) ** 2 * (0.5 * torch.exp(-2.0 * self.log_scale))
-            z2 = z2.clamp_max(self.z_cap * self.z_cap)
+            if self.z_cap > 0:
+                z2 = z2.clamp_max(self.z_cap * self.z_cap)
             common = kf[:, None, :] * m[None, :, :]
+            if self.crease_gate is not None:
+                col, least, unused = self.crease_gate
+                creased_in = k[:, col] & (x[:, col] >= least)
+                creased_unit = self.unit_known[:, col] & (self.stored[:, col] >= least)
+                both = creased_in[:, None] & creased_unit[None, :]
+                common = common * ~(both[:, :, None] & unused[None, None, :])
             sq = (z2 * common * self.feature_weight).sum(dim=2)
+            n = common.sum(dim=2)
+            wn = (common * self.feature_weight).sum(dim=2)
         else:
             kx = kf * x
             sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
-        n = kf @ m.T
-        wn = (kf * self.feature_weight) @ m.T
+            n = kf @ m.T
+            wn = (kf * self.feature_weight) @ m.T
         d2 = sq.clamp_min(0.0) / wn.clamp_min(1e-6)
         untouched = k[:, WEIGHT_INDEX:WEIGHT_INDEX + 1] & ~self.unit_known[:, WEIGHT_INDEX]
         return torch.where((n >= self.min_common_features) & (wn > 0) & ~untouched,
