@@ -566,10 +566,11 @@ def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: 
     features (or none of positive weight). ``crease_gate`` (crease column, least crease,
     features): those features are left out where both looks are creased."""
     common = ks & k
-    if crease_gate is not None:
+    if crease_gate is not None and k[crease_gate[0]] and x[crease_gate[0]] >= crease_gate[1]:
+        # The query is creased: leave the features out against the creased looks.
         col, least, unused = crease_gate
         common = uncreased_common(common, creased_looks(xs, ks, col, least),
-                                  np.full(len(xs), bool(k[col] and x[col] >= least)), unused)
+                                  np.ones(len(xs), bool), unused)
     n = common.sum(axis=1)
     d = rms_z(xs - x, common, scale, np.asarray(weight), z_cap)
     return np.where(n >= min_common, d, np.inf)

@@ -264,15 +264,22 @@ class AssociativeNetwork(nn.Module):
             if self.z_cap > 0:
                 z2 = z2.clamp_max(self.z_cap * self.z_cap)
             common = kf[:, None, :] * m[None, :, :]
+            gated = False
             if self.crease_gate is not None:
                 col, least, unused = self.crease_gate
                 creased_in = k[:, col] & (x[:, col] >= least)
-                creased_unit = self.unit_known[:, col] & (self.stored[:, col] >= least)
-                both = creased_in[:, None] & creased_unit[None, :]
-                common = common * ~(both[:, :, None] & unused[None, None, :])
+                both = creased_in[:, None] & (self.unit_known[:, col]
+                                              & (self.stored[:, col] >= least))[None, :]
+                if bool(creased_in.any()) and bool(both.any()):
+                    common = common * ~(both[:, :, None] & unused[None, None, :])
+                    gated = True
             sq = (z2 * common * self.feature_weight).sum(dim=2)
-            n = common.sum(dim=2)
-            wn = (common * self.feature_weight).sum(dim=2)
+            if gated:
+                n = common.sum(dim=2)
+                wn = (common * self.feature_weight).sum(dim=2)
+            else:
+                n = kf @ m.T
+                wn = (kf * self.feature_weight) @ m.T
         else:
             kx = kf * x
             sq = ((kx * x) * inv) @ m.T - 2.0 * (kx * inv) @ c.T + (kf * inv) @ (c * c).T
