@@ -21,7 +21,13 @@ from roger_common.types import (
     feature_names,
 )
 from roger_perception.config import PerceptionConfig
-from roger_perception.fovea import FoveaLooks, fixated, outline_departure, top_outline
+from roger_perception.fovea import (
+    FoveaLooks,
+    fixated,
+    outline_departure,
+    top_against_other,
+    top_outline,
+)
 from roger_perception.perception import Perception
 from roger_sim.config import SimConfig
 from roger_sim.simulator import Simulator
@@ -66,6 +72,27 @@ def test_an_ellipse_from_the_eye_geometry_departs_by_nothing_and_a_straight_edge
         cols, tops = _envelope(cam, pose, edges)
         assert outline_departure(cols, tops, cam, pose, centre) > 0.08, yaw
 
+
+
+def test_no_outline_departs_more_than_a_straight_edge_across_its_columns():
+    """Beyond a straight edge's departure O says nothing more of a round top (how a
+    corner turns changes with the yaw): a tent-shaped outline whose apex stands far above
+    the ellipse reads as a level edge across the same columns, a flatter one less."""
+    cam = CameraModel(width=192, height=192, focal_px=358.0)
+    pose = _pose()
+    centre = np.array([0.6, 0.0, 0.1])
+    t = np.linspace(0.0, 2 * math.pi, 20000)
+    rim = centre + 0.05 * np.column_stack([np.cos(t), np.sin(t), np.zeros_like(t)])
+    cols, ellipse = _envelope(cam, pose, rim)
+    level = outline_departure(cols, np.zeros(cols.size), cam, pose, centre)
+    assert 0.05 < level < 0.2
+    x = (cols - cols.mean()) / (cols.max() - cols.min())
+    sag = ellipse.max() - ellipse.min()
+    tent = 4.0 * sag * np.abs(x)
+    assert outline_departure(cols, tent, cam, pose, centre) == level
+    # Halfway between the ellipse and a level edge departs less than the edge.
+    half = 0.5 * (ellipse + ellipse.min())
+    assert outline_departure(cols, half, cam, pose, centre) < 0.9 * level
 
 def test_the_fovea_is_rendered_after_a_visual_improvement_only_and_leaves_the_retinas_noise():
     world = WorldSpec((ObjectSpec("b", "box", (0.55, 0.0), 0.12, 90.0, 1.0),))
@@ -114,6 +141,44 @@ def _o_of(shape: str, yaw: float, position: tuple[float, float]) -> float:
     assert roi.known[O_INDEX], (shape, yaw)
     return float(roi.features[O_INDEX])
 
+
+
+def test_the_top_against_another_roi_is_the_share_of_columns_that_meet_it():
+    labels = np.zeros((20, 20), np.int32)
+    labels[8:14, 4:12] = 1  # this ROI: columns 4-11, top row 8
+    labels[2:7, 4:8] = 2    # another ROI ending one row above columns 4-7
+    mask = labels[8:14, 4:12] == 1
+    assert top_against_other(mask, (4, 8, 12, 14), labels, 1) == pytest.approx(0.5)
+    labels[2:7, 4:8] = 0
+    labels[2:5, 4:8] = 2    # three rows above: beyond the reach
+    assert top_against_other(mask, (4, 8, 12, 14), labels, 1) == 0.0
+    assert top_against_other(mask, (4, 8, 12, 14), labels, 1, reach_px=4) == pytest.approx(0.5)
+
+
+def test_a_cylinder_whose_top_meets_a_taller_one_behind_it_has_no_outline():
+    """In line behind a cylinder, a taller one's bottom meets its top in the image: the
+    top edge found there is a step between the two (O read 0.105 where the cylinder alone
+    reads 0.044, a box's value). O is left unknown; the cylinder alone is measured."""
+    near, far = (0.55, 0.0), (0.74, 0.0)
+    front = ObjectSpec("n", "cylinder", near, 0.09, 70.0, 1.0)
+    behind = ObjectSpec("f", "cylinder", far, 0.12, 90.0, 1.0)
+    for objects in ((front, behind), (front,)):
+        sim = Simulator(WorldSpec(objects), SimConfig(), seed=1)
+        perception = Perception(PerceptionConfig(features="extended"))
+        target = (near[0], near[1], 0.05)
+        try:
+            sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
+            _, frame = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))
+        finally:
+            sim.close()
+        rois = perception.process(frame, [])
+        assert len(rois) == len(objects)
+        roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
+        assert math.dist(roi.position[:2], near) < 0.02
+        if len(objects) == 2:
+            assert not roi.known[O_INDEX], float(roi.features[O_INDEX])
+        else:
+            assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08
 
 def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place():
     boxes = [_o_of("box", yaw, pos) for yaw, pos in ((0.0, (0.55, 0.2)),

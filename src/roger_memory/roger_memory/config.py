@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02647, 0.03903, 0.04784, 0.00521, 0.00563, 0.00529,
-    0.02960, 0.02494, 0.02262, 0.00456, 0.01043, 0.02716,
-    0.01962, 0.01417, 0.00124, 0.00514, 0.02474)
+    0.02641, 0.03864, 0.04749, 0.00528, 0.00562, 0.00532,
+    0.02957, 0.02473, 0.02263, 0.00460, 0.01039, 0.02733,
+    0.01462, 0.01417, 0.00125, 0.00509, 0.02472)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.603, 1.229, 1.038, 0.565, 0.482, 0.522,
-    0.407, 0.350, 0.129, 1.786, 3.212, 0.566,
-    1.832, 1.662, 0.742, 0.446, 0.429)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.45
+    1.633, 1.261, 1.063, 0.560, 0.493, 0.527,
+    0.415, 0.365, 0.131, 1.807, 3.271, 0.569,
+    1.560, 1.690, 0.750, 0.466, 0.438)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.35
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -82,9 +82,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0375, 0.0397, 0.2330,
-    1.0, 1.0, 0.0232, 0.2133, 1.0)
-EXTENDED_NOISE_DOF: float = 3.95
+    1.0, 1.0, 1.0, 0.0378, 0.0395, 0.2368,
+    1.0, 1.0, 0.0233, 0.2086, 1.0)
+EXTENDED_NOISE_DOF: float = 4.27
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -101,7 +101,7 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.1101, 0.1003, 1.0, 1.0, 1.0)
+    0.0823, 0.0990, 1.0, 1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says

@@ -21,13 +21,18 @@ at 192 px, 3.3 times the retina's resolution), as primate and iCub eyes have a f
    the ROI's stereo position, projected into the fovea and scaled to the outline's width.
    Its upper half is what the outline would be.
 3. **O** is the outline's departure from that half-ellipse over the central 80 % of its
-   width, after the best vertical shift: the median absolute deviation (robust to a few
-   columns of a neighbour's edge), over the ellipse's vertical half-axis, over ``O_MAX``.
+   width, after the best vertical shift: the RMS over the best ``TRIM`` of the columns
+   (robust to a few columns of a neighbour's edge), over the ellipse's vertical
+   half-axis, over ``O_MAX``. It counts up to the departure a straight edge across the
+   same columns would have (the ellipse's own sag there): beyond it, how far an
+   outline departs is how an edge's corners turn, which changes with the yaw.
 
 A cylinder reads near 0 at any yaw and bearing (its outline is that ellipse; a sphere's is
 close to it). A box's top outline is one straight edge (yaw 0) or two meeting at a corner
 (yaw 45): against an ellipse of the same width both depart by a third of its height, at
-any yaw. A prism's outline is a triangle or a line. Invariant to position and bearing
+any yaw, up to how the corner turns (0.15-0.38 over yaws before the departure was
+capped at a straight edge's; 0.14-0.19 capped). A prism's outline is a triangle or a line
+(read as a straight edge's departure or less). Invariant to position and bearing
 (the ellipse comes from the eye's own pose), to grey and to distance (all in units of the
 ellipse's own height); not to the silhouette's top being another object's (then unknown,
 as H) nor to a top the fovea cuts (unknown).
@@ -49,7 +54,8 @@ from roger_common.types import CameraModel, EyePose
 from roger_perception.haptic import nearest_within
 
 #: O's departure (in units of the ellipse's vertical half-axis) is divided by this: boxes
-#: read about 0.1 (0.2 as O), cylinders 0.02-0.03, prisms up to 0.6 (clipped at 1).
+#: read about 0.07-0.1 (0.14-0.19 as O), cylinders 0.01-0.035, no outline more than a straight
+#: edge (``outline_departure``).
 O_MAX: float = 0.5
 #: Fewest outline columns O is measured from.
 MIN_COLUMNS: int = 8
@@ -226,12 +232,21 @@ def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: Camer
     ok = np.isfinite(envelope) & (np.abs(x) <= CENTRAL * half)
     if ok.sum() < MIN_COLUMNS // 2 or sag <= 0:
         return math.nan
-    d = tops[ok] - envelope[ok]
+    # Beyond a straight edge's departure (a level row across the same columns), how far
+    # an outline departs says nothing more of a round top: it is how an edge's corners
+    # turn, which changes with the yaw (a box read 0.15-0.38 as O over yaws, a cylinder
+    # 0.02-0.07). O counts the departure up to that of a straight edge.
+    return float(min(_departure(tops[ok] - envelope[ok]),
+                     _departure(-envelope[ok])) / sag)
+
+
+def _departure(d: np.ndarray) -> float:
+    """RMS of an outline's deviations from the ellipse after the best vertical shift
+    (their median), over the columns that agree best (TRIM of them): a few columns of
+    another edge do not count, a straight edge's departure at both ends does."""
     d = d - np.median(d)
-    # RMS over the columns that agree best (TRIM of them): a few columns of another edge
-    # do not count, a straight edge's departure at both ends does.
     a = np.sort(np.abs(d))[:max(1, int(round(TRIM * d.size)))]
-    return float(np.sqrt(np.mean(a ** 2)) / sag)
+    return float(np.sqrt(np.mean(a ** 2)))
 
 
 def outline_feature(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
@@ -259,6 +274,35 @@ def fixated(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraMod
     du = us + bbox[0] + 0.5 - camera.width / 2.0
     dv = vs + bbox[1] + 0.5 - camera.height / 2.0
     return bool(np.min(du * du + dv * dv) <= reach_px * reach_px)
+
+
+def top_against_other(mask: np.ndarray, bbox: tuple[int, int, int, int],
+                      labels: np.ndarray, own: int, reach_px: int = 2) -> float:
+    """Share of a ROI's silhouette columns whose top borders another ROI: within
+    ``reach_px`` retina pixels above the column's topmost pixel lies another ROI's pixel.
+    There the outline's edge is a step between two objects, not the object's own edge
+    against the ground (an object standing in line behind it, its bottom meeting this
+    one's top), and O would measure the two together.
+
+    Args:
+        mask: The ROI's silhouette inside ``bbox`` (left retina).
+        bbox: (u0, v0, u1, v1) of the mask in the image.
+        labels: The frame's ROI label image (0 ground, ``own`` this ROI).
+        own: This ROI's label.
+        reach_px: How far above the top to look.
+    """
+    cols = np.flatnonzero(mask.any(axis=0))
+    if cols.size == 0:
+        return 0.0
+    tops = np.argmax(mask[:, cols], axis=0) + bbox[1]
+    u = cols + bbox[0]
+    hit = np.zeros(cols.size, bool)
+    for k in range(1, reach_px + 1):
+        v = tops - k
+        inside = v >= 0
+        lab = np.where(inside, labels[np.clip(v, 0, labels.shape[0] - 1), u], 0)
+        hit |= inside & (lab != 0) & (lab != own)
+    return float(hit.mean())
 
 
 class FoveaLooks:

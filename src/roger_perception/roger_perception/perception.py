@@ -57,7 +57,14 @@ from roger_perception.features import (
     vicinity_radius,
     weight_feature,
 )
-from roger_perception.fovea import FoveaLooks, fixated, fovea_steps, outline_feature
+from roger_perception.fovea import (
+    WHOLE,
+    FoveaLooks,
+    fixated,
+    fovea_steps,
+    outline_feature,
+    top_against_other,
+)
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
@@ -242,7 +249,8 @@ class Perception:
                 known[SIZE_INDEX] = False
                 feats[SIZE_INDEX] = 0.0
             if self.config.feature_mode is FeatureMode.EXTENDED:
-                feats, known = self._extend(feats, known, frame, obj.blob, position)
+                feats, known = self._extend(feats, known, frame, obj.blob, position,
+                                            roi_labels, roi_id + 1)
             tb = time.perf_counter()
             retinal_size = bl.area / image_area
             motion = motions[roi_id]
@@ -267,13 +275,16 @@ class Perception:
 
 
     def _extend(self, feats: np.ndarray, known: np.ndarray, frame: StereoFrame, blob: Any,
-                position: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+                position: tuple[float, float, float], labels: np.ndarray,
+                own: int) -> tuple[np.ndarray, np.ndarray]:
         """The paper's eleven features followed by the shape evidence of ``shape.py``.
 
         H and A are unknown where I is (too little of the outline is the object's own edge, or
         the retina's edge cuts it: its top may be another object's). O is measured, under
         the same condition, on the fovea of a visual improvement, for the ROI the eye
-        fixates (``fovea.fixated``), and kept at the object's position
+        fixates (``fovea.fixated``) whose top borders the ground (``fovea.top_against_other``:
+        at most 1 - ``fovea.WHOLE`` of its columns meet another ROI, the share the outline
+        may miss), and kept at the object's position
         (``fovea.FoveaLooks``: the median of its last looks), like the weight. The touch ones are
         known where a haptic reading with tactile contacts lies near, like W.
         """
@@ -290,7 +301,8 @@ class Perception:
             if math.isfinite(a):
                 extra[_A], extra_known[_A] = a, True
             if frame.fovea is not None and frame.fovea_camera is not None \
-                    and fixated(blob.mask, blob.bbox, frame.camera):
+                    and fixated(blob.mask, blob.bbox, frame.camera) \
+                    and top_against_other(blob.mask, blob.bbox, labels, own) <= 1.0 - WHOLE:
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:
                     self._fovea_steps = (frame.fovea, fovea_steps(frame.fovea))
                 o = outline_feature(frame.fovea, frame.fovea_camera, frame.camera,
