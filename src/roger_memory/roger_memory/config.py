@@ -88,7 +88,9 @@ EXTENDED_NOISE_DOF: float = 4.27
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
-#: box reads 0.15-0.2 at every yaw), unlike a prism's (its ridge turns with the yaw) or a
+#: box reads 0.14-0.19 at every yaw, since O counts up to a straight edge's departure:
+#: docs/memory.md, "O up to a straight edge's departure"), unlike a prism's (its ridge
+#: turns with the yaw) or a
 #: sphere's (its outline against the rim's ellipse changes with the declination), and it
 #: is the one feature that parts a box from a cylinder of one size, grey and weight
 #: (docs/memory.md, "The outline vetoes between flat tops"). And A: a flat top's grey
