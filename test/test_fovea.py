@@ -122,25 +122,27 @@ def test_the_fovea_is_rendered_after_a_visual_improvement_only_and_leaves_the_re
         np.testing.assert_array_equal(a.right, b.right)
 
 
-def _o_of(shape: str, yaw: float, position: tuple[float, float]) -> float:
-    """O of one object after a shift and a visual improvement onto it."""
-    other = (position[0], -position[1])
-    world = WorldSpec((ObjectSpec("x", shape, position, 0.12, 90.0, 1.0, yaw=yaw),
-                       ObjectSpec("y", "sphere", other, 0.10, 60.0, 1.0)))
-    sim = Simulator(world, SimConfig(), seed=1)
-    perception = Perception(PerceptionConfig(features="extended"))
+def _look_at(objects: tuple[ObjectSpec, ...], position: tuple[float, float]) -> list:
+    """The extended ROIs after a shift and a visual improvement onto ``position``."""
+    sim = Simulator(WorldSpec(objects), SimConfig(), seed=1)
     target = (position[0], position[1], 0.05)
     try:
         sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
         _, frame = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))
     finally:
         sim.close()
-    rois = perception.process(frame, [])
+    return Perception(PerceptionConfig(features="extended")).process(frame, [])
+
+
+def _o_of(shape: str, yaw: float, position: tuple[float, float]) -> float:
+    """O of one object after a shift and a visual improvement onto it."""
+    other = (position[0], -position[1])
+    rois = _look_at((ObjectSpec("x", shape, position, 0.12, 90.0, 1.0, yaw=yaw),
+                     ObjectSpec("y", "sphere", other, 0.10, 60.0, 1.0)), position)
     roi = min(rois, key=lambda r: math.dist(r.position[:2], position))
     assert math.dist(roi.position[:2], position) < 0.05
     assert roi.known[O_INDEX], (shape, yaw)
     return float(roi.features[O_INDEX])
-
 
 
 def test_the_top_against_another_roi_is_the_share_of_columns_that_meet_it():
@@ -163,15 +165,7 @@ def test_a_cylinder_whose_top_meets_a_taller_one_behind_it_has_no_outline():
     front = ObjectSpec("n", "cylinder", near, 0.09, 70.0, 1.0)
     behind = ObjectSpec("f", "cylinder", far, 0.12, 90.0, 1.0)
     for objects in ((front, behind), (front,)):
-        sim = Simulator(WorldSpec(objects), SimConfig(), seed=1)
-        perception = Perception(PerceptionConfig(features="extended"))
-        target = (near[0], near[1], 0.05)
-        try:
-            sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
-            _, frame = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))
-        finally:
-            sim.close()
-        rois = perception.process(frame, [])
+        rois = _look_at(objects, near)
         assert len(rois) == len(objects)
         roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
         assert math.dist(roi.position[:2], near) < 0.02
@@ -187,6 +181,7 @@ def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place
     cylinders = [_o_of("cylinder", yaw, pos) for yaw, pos in ((0.0, (0.55, 0.2)),
                                                               (1.1, (0.5, 0.05)))]
     assert min(boxes) > 2.0 * max(cylinders), (boxes, cylinders)
+
 
 
 def test_a_silhouette_outside_the_fovea_gives_no_outline():
