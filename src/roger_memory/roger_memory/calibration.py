@@ -77,6 +77,10 @@ class Calibration:
             ``veto_quantile`` difference between two such looks of one entry and the cap
             in a flat category's scale, z_cap sqrt 2 sigma_f, both measured on the flat
             looks alone (docs/memory.md, "The outline vetoes between flat tops").
+        straight_veto: The same for two flat looks whose outline is straight
+            (``straight_looks``: a box's top) and the features of ``straight_vetoing``,
+            measured on those looks alone (None when none was marked; docs/memory.md,
+            "The grey between two straight-edged tops").
     """
 
     feature_scale: np.ndarray
@@ -91,6 +95,7 @@ class Calibration:
     pairs_between: int
     between_accepted: float = float("nan")
     flat_veto: np.ndarray | None = None
+    straight_veto: np.ndarray | None = None
 
 
 def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
@@ -114,6 +119,41 @@ def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
     k = np.asarray(known, bool)
     return (k[:, crease_index] & k[:, curvature_index] & (x[:, crease_index] < crease_max)
             & (x[:, curvature_index] < curvature_max))
+
+
+def straight_looks(features: np.ndarray, known: np.ndarray, flat: np.ndarray,
+                   outline_index: int, outline_min: float) -> np.ndarray:
+    """Flat looks (``flat_looks``) whose top outline is straight-edged: the outline (O)
+    known and at least ``outline_min`` (a box's top departs from the rim's ellipse by
+    about a straight edge's departure; a cylinder's is the ellipse).
+
+    Returns:
+        (n,) bool.
+    """
+    x = np.asarray(features, np.float64)
+    k = np.asarray(known, bool)
+    return np.asarray(flat, bool) & k[:, outline_index] & (x[:, outline_index] >= outline_min)
+
+
+def two_class_split(values: np.ndarray) -> float:
+    """The value that splits ``values`` into two classes with the largest variance
+    between them (Otsu's threshold over the sorted values): midway between the two
+    neighbouring values where the split falls.
+
+    Raises:
+        ValueError: Fewer than two distinct values.
+    """
+    v = np.sort(np.asarray(values, np.float64).ravel())
+    if v.size < 2 or v[0] == v[-1]:
+        raise ValueError(f"two_class_split: need two distinct values, got {v.size} values")
+    n = np.arange(1, v.size)
+    csum = np.cumsum(v)[:-1]
+    low_mean = csum / n
+    high_mean = (v.sum() - csum) / (v.size - n)
+    between = n * (v.size - n) * (high_mean - low_mean) ** 2
+    between[v[1:] == v[:-1]] = -1.0  # split only between two distinct values
+    i = int(np.argmax(between))
+    return float((v[i] + v[i + 1]) / 2.0)
 
 
 def creased_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
@@ -240,7 +280,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
               max_pairs: int = 400_000, seed: int = 0, z_cap: float = 0.0,
               vetoing: np.ndarray | None = None, flat: np.ndarray | None = None,
               flat_vetoing: np.ndarray | None = None, creased: np.ndarray | None = None,
-              creased_unused: np.ndarray | None = None) -> Calibration:
+              creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
+              straight_vetoing: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -275,6 +316,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
             None: none).
         creased_unused: (F,) features left out of every pair of two creased looks, as
             the memory leaves them out (``uncreased_common``; None: none).
+        straight: (n,) flat looks whose outline is straight (``straight_looks``; None:
+            none).
+        straight_vetoing: (F,) features that veto between two straight-edged flat looks
+            (``Calibration.straight_veto``; None: none).
 
     Returns:
         The Calibration.
@@ -283,9 +328,9 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         ValueError: Too few pairs of either kind to estimate a scale.
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused)
+               creased, creased_unused, straight)
     return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing,
-                   flat_vetoing)
+                   flat_vetoing, straight_vetoing)
 
 
 #: The veto of a feature that may not veto: every feature lies in [0, 1], so no
@@ -302,7 +347,9 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  outlier_share: float = 0.02, iterations: int = 30, min_common: int = 6,
                  max_pairs: int = 400_000, seed: int = 0, vetoing: np.ndarray | None = None,
                  flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None,
-                 creased: np.ndarray | None = None, creased_unused: np.ndarray | None = None
+                 creased: np.ndarray | None = None, creased_unused: np.ndarray | None = None,
+                 straight: np.ndarray | None = None,
+                 straight_vetoing: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -315,20 +362,20 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
-    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased`` and ``creased_unused`` as
-    ``calibrate``'s.
+    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased``, ``creased_unused``, ``straight``
+    and ``straight_vetoing`` as ``calibrate``'s.
 
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused)
+               creased, creased_unused, straight)
     scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
                              min_common, cap)
               for cap in caps}
     best = min(scores, key=lambda cap: scores[cap])
     return (_finish(fit, identify_quantile, veto_quantile, min_common, seed, best, vetoing,
-                    flat_vetoing), scores)
+                    flat_vetoing, straight_vetoing), scores)
 
 
 def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: float
@@ -361,12 +408,14 @@ class _Fit:
     weight: np.ndarray
     share: float
     flat_fit: _Fit | None = None
+    straight_fit: _Fit | None = None
 
 
 def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
          outlier_share: float, iterations: int, max_pairs: int, seed: int,
          flat: np.ndarray | None = None, creased: np.ndarray | None = None,
-         creased_unused: np.ndarray | None = None) -> _Fit:
+         creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None
+         ) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
     scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
@@ -418,22 +467,32 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
 
     between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
     weight = information_weight(between_scale, scale)
-    flat_fit = None
-    if flat is not None:
-        # The same fit on the flat looks alone: how one flat top's features spread, and a
-        # flat category's.
-        flat = np.asarray(flat, bool)
-        try:
-            flat_fit = _fit(x[flat], k[flat], run[flat], entry[flat], outlier_share,
-                            iterations, max_pairs, seed)
-        except ValueError:
-            flat_fit = None
-    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit)
+    # The same fit on the flat looks alone (how one flat top's features spread, and a flat
+    # category's), and on the straight-edged flat looks alone.
+    flat_fit, straight_fit = (
+        _sub_fit(x, k, run, entry, mask, outlier_share, iterations, max_pairs, seed)
+        for mask in (flat, straight))
+    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit,
+                straight_fit)
+
+
+def _sub_fit(x: np.ndarray, k: np.ndarray, run: np.ndarray, entry: np.ndarray,
+             mask: np.ndarray | None, outlier_share: float, iterations: int, max_pairs: int,
+             seed: int) -> _Fit | None:
+    """``_fit`` on the looks of ``mask`` alone (None: no mask, or too few pairs)."""
+    if mask is None:
+        return None
+    m = np.asarray(mask, bool)
+    try:
+        return _fit(x[m], k[m], run[m], entry[m], outlier_share, iterations, max_pairs, seed)
+    except ValueError:
+        return None
 
 
 def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_common: int,
             seed: int, z_cap: float, vetoing: np.ndarray | None = None,
-            flat_vetoing: np.ndarray | None = None) -> Calibration:
+            flat_vetoing: np.ndarray | None = None,
+            straight_vetoing: np.ndarray | None = None) -> Calibration:
     """The part of ``calibrate`` that depends on the cap: acceptance distance, replay
     noise, veto and the share of other entries the acceptance takes in."""
     d0, c0, d1 = fit.d0, fit.c0, fit.d1
@@ -466,18 +525,29 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
     # largest difference between two looks of one entry (unscaled: a flat top's outline is
     # the same from every place) and the cap in a flat category's scale, beyond which the
     # distance no longer hears the feature.
-    flat_veto = None
-    if fit.flat_fit is not None and flat_vetoing is not None:
-        ff = fit.flat_fit
-        flat_veto = np.full(n_feat, NO_VETO)
-        for g in np.flatnonzero(np.asarray(flat_vetoing, bool)):
-            own = np.abs(ff.d0[ff.c0[:, g], g])
-            tail = float(np.quantile(own, veto_quantile)) if own.size else NO_VETO
-            flat_veto[g] = min(NO_VETO, max(tail, z_cap * np.sqrt(2.0) * ff.scale[g]))
+    # The same between two straight-edged flat looks, on those looks alone.
+    flat_veto = _sub_veto(fit.flat_fit, flat_vetoing, n_feat, veto_quantile, z_cap)
+    straight_veto = _sub_veto(fit.straight_fit, straight_vetoing, n_feat, veto_quantile, z_cap)
     accepted = _accepted(fit, identify_distance, min_common, z_cap)
     return Calibration(feature_scale=scale, feature_weight=weight,
                        between_scale=fit.between_scale, entry_scale=entry_scale,
                        identify_distance=identify_distance, noise_dof=dof, veto=veto,
                        same_share=fit.share,
                        pairs_same_entry=len(d0), pairs_between=len(d1),
-                       between_accepted=accepted, flat_veto=flat_veto)
+                       between_accepted=accepted, flat_veto=flat_veto,
+                       straight_veto=straight_veto)
+
+
+def _sub_veto(sub: _Fit | None, vetoing: np.ndarray | None, n_feat: int,
+              veto_quantile: float, z_cap: float) -> np.ndarray | None:
+    """Per feature of ``vetoing``, the larger of the ``veto_quantile`` difference between
+    two looks of one entry and the cap in the category scale, both of the sub-fit's looks;
+    NO_VETO for the rest (None without a sub-fit or features)."""
+    if sub is None or vetoing is None:
+        return None
+    veto = np.full(n_feat, NO_VETO)
+    for g in np.flatnonzero(np.asarray(vetoing, bool)):
+        own = np.abs(sub.d0[sub.c0[:, g], g])
+        tail = float(np.quantile(own, veto_quantile)) if own.size else NO_VETO
+        veto[g] = min(NO_VETO, max(tail, z_cap * np.sqrt(2.0) * sub.scale[g]))
+    return veto

@@ -104,6 +104,24 @@ EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     0.0823, 0.0990, 1.0, 1.0, 1.0)
+#: The features that veto between two flat looks whose outlines are both straight-edged
+#: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
+#: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
+#: brightest surface is its lit side, which turns with its bearing (copies 0.018-0.028
+#: apart), and that spread is what widens A's veto between flat tops to 0.099 (docs/memory.md,
+#: "The grey between two straight-edged tops").
+STRAIGHT_VETO_FEATURES: tuple[str, ...] = ("A",)
+#: The outline O from which a flat look's top counts as straight-edged: the two-class split
+#: (``calibration.two_class_split``) of the flat looks' O on the same recorded looks (boxes
+#: read 0.10-0.19, cylinders 0.02-0.09 there).
+EXTENDED_STRAIGHT_OUTLINE: float = 0.1092
+#: The extended mode's veto between two straight-edged flat looks: NO_VETO (1.0) but for
+#: STRAIGHT_VETO_FEATURES, calibrated on those looks alone (``calibration.calibrate``'s
+#: ``straight_veto``).
+EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
+    1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
+    1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
+    1.0, 0.0266, 1.0, 1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
@@ -130,6 +148,8 @@ class Calibrated:
     maskable_features: tuple[str, ...]
     z_cap: float
     flat_veto: tuple[float, ...]
+    straight_outline: float
+    straight_veto: tuple[float, ...]
 
 
 #: The calibrated defaults of each feature mode.
@@ -137,12 +157,14 @@ CALIBRATED: dict[FeatureMode, Calibrated] = {
     FeatureMode.PAPER: Calibrated(CALIBRATED_FEATURE_SCALE, CALIBRATED_FEATURE_WEIGHT,
                                   CALIBRATED_IDENTIFY_DISTANCE, CALIBRATED_VETO,
                                   CALIBRATED_NOISE_DOF, ("W",), 0.0,
+                                  (1.0,) * len(CALIBRATED_VETO), 1.0,
                                   (1.0,) * len(CALIBRATED_VETO)),
     FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
                                      EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
                                      EXTENDED_NOISE_DOF,
                                      TOUCH_FEATURE_NAMES + FOVEA_FEATURE_NAMES,
-                                     EXTENDED_Z_CAP, EXTENDED_FLAT_VETO),
+                                     EXTENDED_Z_CAP, EXTENDED_FLAT_VETO,
+                                     EXTENDED_STRAIGHT_OUTLINE, EXTENDED_STRAIGHT_VETO),
 }
 _DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]
 
@@ -185,6 +207,14 @@ class MemoryConfig:
             touched).
         flat_curvature: Largest curvature TK of a flat top (a sphere reads 0.3-0.8, a box's
             or cylinder's top under 0.05).
+        straight_outline: Smallest outline O of a straight-edged flat top (a box's reads
+            0.10-0.19, a cylinder's 0.02-0.09; calibrated: the two-class split of the flat
+            looks' O).
+        straight_veto: Per feature, the veto between a query and the winner's nearest look
+            when both are flat and both outlines are straight-edged (O known and at least
+            ``straight_outline`` in both; extended mode): the smallest of this,
+            ``flat_veto`` and ``veto`` applies (calibrated; 1.0 for all but
+            STRAIGHT_VETO_FEATURES).
         creased_unused: Features left out of the distance between two looks whose touches
             found a crease (TC >= ``flat_crease``, known in both; extended mode: O, which
             turns with a prism's yaw; () in the paper mode, which has no crease; () in the
@@ -243,6 +273,12 @@ class MemoryConfig:
         "doc": "Largest touch crease TC of a smooth top (flat_veto)", "live": True})
     flat_curvature: float = field(default=0.2, metadata={
         "doc": "Largest touch curvature TK of a flat top (flat_veto)", "live": True})
+    straight_outline: float = field(default=_DEFAULT.straight_outline, metadata={
+        "doc": "Calibrated smallest outline O of a straight-edged flat top (straight_veto)",
+        "live": True})
+    straight_veto: tuple[float, ...] = field(default=_DEFAULT.straight_veto, metadata={
+        "doc": "Calibrated veto between two straight-edged flat tops, per feature",
+        "live": True})
     creased_unused: tuple[str, ...] = field(default=CREASED_UNUSED_FEATURES, metadata={
         "doc": "Features left out between two creased looks (names of the mode's features)"})
     min_common_features: int = field(default=6, metadata={
@@ -296,6 +332,7 @@ class MemoryConfig:
         # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
         for name, kind in (("feature_scale", "positive numbers"),
                            ("veto", "positive numbers"), ("flat_veto", "positive numbers"),
+                           ("straight_veto", "positive numbers"),
                            ("feature_weight", "numbers >= 0")):
             value = tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                           else v for v in getattr(self, name))
@@ -319,6 +356,7 @@ class MemoryConfig:
         _non_negative("z_cap", self.z_cap)
         _unit("flat_crease", self.flat_crease)
         _unit("flat_curvature", self.flat_curvature)
+        _unit("straight_outline", self.straight_outline)
         _positive_int("min_common_features", self.min_common_features)
         if self.min_common_features > len(names):
             _fail("min_common_features", self.min_common_features, f"<= {len(names)}")

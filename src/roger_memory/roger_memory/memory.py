@@ -19,7 +19,9 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
   object); a veto turns IDENTIFIED into UNDETERMINED (non-final) or NEW (final), and is
   counted in :attr:`AssociativeMemory.stats`. Between two looks the hand found smooth and
   flat-topped (``MemoryConfig.flat_veto``: a box's or cylinder's top) the fovea's outline
-  O vetoes too; elsewhere it varies with the view and does not.
+  O and the brightest grey A veto too, and between two whose outlines are both
+  straight-edged (``straight_veto``: a box's top) A vetoes closer; elsewhere they vary
+  with the view and do not.
 
 Each address holds several looks: the looks of the focus that stored it (the requests
 carry the focus id) and, later, looks of foci identified as it, added only when one of
@@ -156,11 +158,16 @@ class AssociativeMemory:
     def _set_vetoes(self, config: MemoryConfig) -> None:
         self._veto = np.asarray(config.veto, np.float32)
         self._flat_veto = np.minimum(self._veto, np.asarray(config.flat_veto, np.float32))
+        self._straight_veto = np.minimum(self._flat_veto,
+                                         np.asarray(config.straight_veto, np.float32))
         names = feature_names(config.features)
         # The flat-top veto needs the touch's crease and curvature (extended mode).
         self._flat_columns = ((names.index("TC"), names.index("TK"))
                               if "TC" in names and "TK" in names
-                              and np.any(self._flat_veto < self._veto) else None)
+                              and np.any(self._straight_veto < self._veto) else None)
+        # The straight-edged tops' veto needs the outline (extended mode).
+        self._outline_column = (names.index("O") if "O" in names
+                                and np.any(self._straight_veto < self._flat_veto) else None)
         # Between two creased looks the features of creased_unused count not.
         unused = np.array([n in config.creased_unused for n in names])
         self._crease_gate = ((names.index("TC"), config.flat_crease, unused)
@@ -169,13 +176,19 @@ class AssociativeMemory:
 
     def veto_between(self, features: np.ndarray, known: np.ndarray,
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
-        """The per-feature veto between two looks: ``veto``, or the smaller
-        ``flat_veto`` where the hand found both smooth and flat-topped."""
-        if (self._flat_columns is not None
-                and self._flat(np.asarray(features), np.asarray(known, bool))
-                and self._flat(np.asarray(other), np.asarray(other_known, bool))):
-            return self._flat_veto
-        return self._veto
+        """The per-feature veto between two looks: ``veto``; the smaller ``flat_veto``
+        where the hand found both smooth and flat-topped; the smaller still
+        ``straight_veto`` where both flat tops' outlines are straight-edged too."""
+        features, known = np.asarray(features), np.asarray(known, bool)
+        other, other_known = np.asarray(other), np.asarray(other_known, bool)
+        if (self._flat_columns is None or not self._flat(features, known)
+                or not self._flat(other, other_known)):
+            return self._veto
+        o = self._outline_column
+        if (o is not None and known[o] and other_known[o]
+                and min(features[o], other[o]) >= self._config.straight_outline):
+            return self._straight_veto
+        return self._flat_veto
 
     def _flat(self, features: np.ndarray, known: np.ndarray) -> bool:
         assert self._flat_columns is not None
