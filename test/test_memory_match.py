@@ -301,6 +301,44 @@ def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -
     assert all(v >= 1.0 for v in paper.flat_veto)
 
 
+def test_the_grey_vetoes_closer_between_two_straight_edged_flat_tops() -> None:
+    """Two boxes of one size and weight, 16 greys apart (A 0.054), differ too little in A
+    for the veto between flat tops (a cylinder's lit side spreads its copies' A) and the
+    cap keeps them within the acceptance distance. Between two flat looks whose outlines
+    are both straight-edged (O >= ``straight_outline``: a box's top, one grey wherever it
+    stands) A vetoes at ``straight_veto``. Between two round outlines (cylinders), or one
+    of each, or where one outline is unknown, it does not."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    o, a, tc, tk = (names.index(n) for n in ("O", "A", "TC", "TK"))
+    assert cfg.straight_veto[a] < 0.054 < cfg.flat_veto[a]
+    assert all(v >= 1.0 for i, v in enumerate(cfg.straight_veto) if i != a)
+    box, cylinder = cfg.straight_outline + 0.05, cfg.straight_outline - 0.06
+    # A round outline just under the split: O alone, 0.04 from the box's, does not veto.
+    round_near = cfg.straight_outline - 0.01
+    assert box - round_near < cfg.flat_veto[o]
+    known = np.ones(len(names), bool)
+    for what, outline, query_outline, vetoed in (("two boxes", box, box, True),
+                                                 ("two cylinders", cylinder, cylinder, False),
+                                                 ("stored box, round query", box,
+                                                  round_near, False)):
+        x = np.full(len(names), 0.4)
+        x[tc], x[tk], x[o], x[a] = 0.1, 0.0, outline, 0.22
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[o], q[a] = query_outline, 0.166
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.distance < cfg.identify_distance, what
+        assert decision.vetoed is vetoed, what
+        # Without the query's outline, its top is not known to be straight-edged.
+        unknown = known.copy()
+        unknown[o] = False
+        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+    # In the paper mode the rule has nothing to read (no outline, no touch).
+    assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").straight_veto)
+
+
 def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> None:
     """A prism's outline O turns with its yaw (0.2-0.85): between two looks whose touches
     crossed a crease (TC >= flat_crease) O is left out of the distance, in the network

@@ -23,7 +23,14 @@ from roger_common.types import (
     feature_names,
 )
 from roger_experiments.record_queries import Query, ReplayScore, read_csv, replay
-from roger_memory.calibration import calibrate, choose_z_cap, creased_looks, flat_looks
+from roger_memory.calibration import (
+    calibrate,
+    choose_z_cap,
+    creased_looks,
+    flat_looks,
+    straight_looks,
+    two_class_split,
+)
 from roger_memory.config import (
     CALIBRATED,
     CALIBRATED_FEATURE_SCALE,
@@ -33,6 +40,7 @@ from roger_memory.config import (
     CALIBRATED_VETO,
     FLAT_VETO_FEATURES,
     NEVER_VETO_FEATURES,
+    STRAIGHT_VETO_FEATURES,
     MemoryConfig,
 )
 from roger_memory.memory import AssociativeMemory
@@ -97,10 +105,17 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     names = feature_names("extended")
     x, known = np.stack([q.features for q in rows]), np.stack([q.known for q in rows])
     defaults = MemoryConfig.for_mode("extended")
+    ext = CALIBRATED[FeatureMode.EXTENDED]
     ext_unused = defaults.creased_unused
     assert ext_unused == ("O",)
     flat = flat_looks(x, known, names.index("TC"), names.index("TK"), defaults.flat_crease,
                       defaults.flat_curvature)
+    o = names.index("O")
+    # The outline of a straight-edged top: the two-class split of the flat looks' O.
+    split = two_class_split(x[flat & known[:, o], o])
+    assert split == pytest.approx(ext.straight_outline, abs=5e-4)
+    straight = straight_looks(x, known, flat, o, split)
+    assert 0.3 < straight.sum() / flat.sum() < 0.7  # boxes against cylinders
     cal, scores = choose_z_cap(x, known,
                                np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
                                np.array([q.entry for q in rows]),
@@ -110,12 +125,19 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
                                flat_vetoing=np.array([n in FLAT_VETO_FEATURES for n in names]),
                                creased=creased_looks(x, known, names.index("TC"),
                                                      defaults.flat_crease),
-                               creased_unused=np.array([n in ext_unused for n in names]))
-    ext = CALIBRATED[FeatureMode.EXTENDED]
+                               creased_unused=np.array([n in ext_unused for n in names]),
+                               straight=straight,
+                               straight_vetoing=np.array([n in STRAIGHT_VETO_FEATURES
+                                                          for n in names]))
     # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
     assert 0.2 < flat.mean() < 0.6
     assert cal.flat_veto is not None
     np.testing.assert_allclose(cal.flat_veto, ext.flat_veto, rtol=0.01, atol=5e-4)
+    assert cal.straight_veto is not None
+    np.testing.assert_allclose(cal.straight_veto, ext.straight_veto, rtol=0.01, atol=5e-4)
+    # Between straight-edged tops A vetoes closer than between flat tops at large.
+    a = names.index("A")
+    assert cal.straight_veto[a] < 0.5 * cal.flat_veto[a]
     assert min(scores, key=lambda cap: scores[cap]) == ext.z_cap
     # The cap matters: none, or the old 3, lets the acceptance take in more other looks.
     assert scores[0.0] > scores[3.0] > scores[ext.z_cap]
@@ -256,3 +278,19 @@ def test_no_look_without_weight_is_identified_before_the_final_trial() -> None:
             continue
         assert memory.decide(q.features, q.known, False,
                              network=memory.network).result.outcome != MatchOutcome.IDENTIFIED
+
+
+def test_the_two_class_split_falls_in_the_gap_between_two_groups() -> None:
+    """``two_class_split`` (the straight-edged tops' outline, MemoryConfig.straight_outline)
+    lies between two groups of values (cylinders' outlines about 0.05, boxes' about 0.16,
+    each object's looks spread by its own noise) in either proportion, and between two
+    distinct values; it needs two."""
+    rng = np.random.default_rng(5)
+    for n_low, n_high in ((300, 300), (100, 500), (500, 100)):
+        low = np.clip(rng.normal(0.05, 0.01, n_low), 0.0, None)
+        high = rng.normal(0.16, 0.012, n_high)
+        split = two_class_split(np.concatenate([high, low]))
+        assert low.max() < split < high.min(), (n_low, n_high)
+    assert two_class_split(np.array([0.2, 0.2, 0.4])) == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="two distinct"):
+        two_class_split(np.array([0.1, 0.1]))
