@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+import roger_perception.perception as perception_module
 from roger_common.geometry import look_rotation, project_point
 from roger_common.types import (
     Action,
@@ -22,6 +23,7 @@ from roger_common.types import (
 )
 from roger_perception.config import PerceptionConfig
 from roger_perception.fovea import (
+    WHOLE,
     FoveaLooks,
     fixated,
     outline_departure,
@@ -173,6 +175,33 @@ def test_a_cylinder_whose_top_meets_a_taller_one_behind_it_has_no_outline():
             assert not roi.known[O_INDEX], float(roi.features[O_INDEX])
         else:
             assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08
+
+def test_where_the_top_meets_another_roi_only_a_round_outline_counts(monkeypatch):
+    """A dark cylinder 0.19 m behind in line meets the top of a near cylinder or box over
+    more than a quarter of its columns. A step found between two objects adds departure,
+    never takes it away: the cylinder's outline reads round and counts; the box's reads
+    straight-edged, which a cylinder's could also read there, and stays unknown."""
+    shares: list[float] = []
+    real = perception_module.top_against_other
+
+    def spy(*args):
+        shares.append(real(*args))
+        return shares[-1]
+
+    monkeypatch.setattr(perception_module, "top_against_other", spy)
+    near = (0.55, 0.0)
+    behind = ObjectSpec("f", "cylinder", (0.74, 0.0), 0.14, 30.0, 1.0)
+    for shape in ("cylinder", "box"):
+        shares.clear()
+        rois = _look_at((ObjectSpec("n", shape, near, 0.09, 70.0, 1.0), behind), near)
+        roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
+        assert math.dist(roi.position[:2], near) < 0.02, shape
+        assert len(shares) == 1 and shares[0] > 1.0 - WHOLE, (shape, shares)
+        if shape == "cylinder":
+            assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08
+        else:
+            assert not roi.known[O_INDEX], float(roi.features[O_INDEX])
+
 
 def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place():
     boxes = [_o_of("box", yaw, pos) for yaw, pos in ((0.0, (0.55, 0.2)),

@@ -37,6 +37,13 @@ capped at a straight edge's; 0.14-0.19 capped). A prism's outline is a triangle 
 ellipse's own height); not to the silhouette's top being another object's (then unknown,
 as H) nor to a top the fovea cuts (unknown).
 
+Where more than 1 - ``WHOLE`` of a fixated ROI's top columns meet another ROI
+(``top_against_other``: an object in line behind it, its bottom against this one's top),
+the step found there may be between the two objects. Such a step adds departure (a
+cylinder then reads like a box), it never takes a box's away: there the outline counts only
+when it reads round, under ``ROUND`` of a straight edge's departure (``outline_feature``'s
+``round_only``), and is unknown otherwise.
+
 ``FoveaLooks`` keeps each measurement at its object's position, as ``HapticMemory`` keeps
 the weight: O is known in every later frame that shows the object, unknown before the first
 visual improvement onto it. Pure numpy/OpenCV; no ROS.
@@ -72,6 +79,11 @@ EDGE_SNR: float = 4.0
 WHOLE: float = 0.75
 #: Share of the central columns whose departure O averages (the rest may be a neighbour's).
 TRIM: float = 0.9
+#: Where a fixated ROI's top meets another ROI, its outline counts only when it departs
+#: from the half-ellipse by less than this share of a straight edge's departure: a step
+#: found between two objects adds departure (a cylinder read like a box), it never takes
+#: a box's away (module docstring).
+ROUND: float = 0.5
 #: The fixated ROI's silhouette reaches this close to the optical axis, retina pixels.
 FIXATION_PX: float = 3.0
 #: Radius of the circle projected for the ellipse's shape, metres (only its shape counts).
@@ -201,6 +213,16 @@ def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: Camer
         pose: The left eye's pose (the fovea's).
         position: The ROI's stereo position, robot frame.
     """
+    own, straight = outline_departures(columns, tops, fovea_camera, pose, position)
+    return min(own, straight)
+
+
+def outline_departures(columns: np.ndarray, tops: np.ndarray, fovea_camera: CameraModel,
+                       pose: EyePose, position: Sequence[float]) -> tuple[float, float]:
+    """The outline's own departure from the half-ellipse and a straight edge's across the
+    same columns, both in units of the ellipse's vertical half-axis (``outline_departure``
+    is the smaller); (NaN, NaN) where not measurable. Arguments as
+    ``outline_departure``'s."""
     p = np.asarray(position, float)
     angles = np.linspace(0.0, 2.0 * math.pi, 181)[:-1]
     rim = np.column_stack([p[0] + _R0 * np.cos(angles), p[1] + _R0 * np.sin(angles),
@@ -208,13 +230,13 @@ def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: Camer
     # project_point for every rim point at once (pinhole, pixel centres at +0.5).
     cam = (rim - np.asarray(pose.position, float)) @ np.asarray(pose.rotation, float)
     if not np.all(cam[:, 2] > 1e-9):
-        return math.nan
+        return math.nan, math.nan
     pu = fovea_camera.focal_px * cam[:, 0] / cam[:, 2] + fovea_camera.width / 2.0
     pv = fovea_camera.focal_px * cam[:, 1] / cam[:, 2] + fovea_camera.height / 2.0
     width = (pu.max() - pu.min()) / 2.0
     half = (columns.max() + 1 - columns.min()) / 2.0
     if width <= 0 or half < MIN_COLUMNS / 2:
-        return math.nan
+        return math.nan, math.nan
     scale = half / width
     pu = (pu - (pu.max() + pu.min()) / 2.0) * scale
     pv = pv * scale
@@ -231,13 +253,13 @@ def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: Camer
     envelope = np.where(span, v_at, np.inf).min(axis=1)
     ok = np.isfinite(envelope) & (np.abs(x) <= CENTRAL * half)
     if ok.sum() < MIN_COLUMNS // 2 or sag <= 0:
-        return math.nan
+        return math.nan, math.nan
     # Beyond a straight edge's departure (a level row across the same columns), how far
     # an outline departs says nothing more of a round top: it is how an edge's corners
     # turn, which changes with the yaw (a box read 0.15-0.38 as O over yaws, a cylinder
     # 0.02-0.07). O counts the departure up to that of a straight edge.
-    return float(min(_departure(tops[ok] - envelope[ok]),
-                     _departure(-envelope[ok])) / sag)
+    return (float(_departure(tops[ok] - envelope[ok]) / sag),
+            float(_departure(-envelope[ok]) / sag))
 
 
 def _departure(d: np.ndarray) -> float:
@@ -252,14 +274,20 @@ def _departure(d: np.ndarray) -> float:
 def outline_feature(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
                     pose: EyePose, mask: np.ndarray, bbox: tuple[int, int, int, int],
                     position: Sequence[float],
-                    steps: tuple[np.ndarray, float] | None = None) -> float:
+                    steps: tuple[np.ndarray, float] | None = None,
+                    round_only: bool = False) -> float:
     """O of one ROI normalised to [0, 1]; NaN where the fovea does not measure it
-    (``steps``: as for ``top_outline``)."""
+    (``steps``: as for ``top_outline``). ``round_only``: NaN too unless the outline
+    departs less than ``ROUND`` of a straight edge's departure (a top that meets another
+    ROI: module docstring)."""
     outline = top_outline(fovea, fovea_camera, camera, mask, bbox, steps)
     if outline is None:
         return math.nan
-    dep = outline_departure(*outline, fovea_camera, pose, position)
-    return float(min(1.0, dep / O_MAX)) if math.isfinite(dep) else math.nan
+    own, straight = outline_departures(*outline, fovea_camera, pose, position)
+    dep = min(own, straight)
+    if not math.isfinite(dep) or (round_only and not own < ROUND * straight):
+        return math.nan
+    return float(min(1.0, dep / O_MAX))
 
 
 def fixated(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraModel,

@@ -282,9 +282,9 @@ class Perception:
         H and A are unknown where I is (too little of the outline is the object's own edge, or
         the retina's edge cuts it: its top may be another object's). O is measured, under
         the same condition, on the fovea of a visual improvement, for the ROI the eye
-        fixates (``fovea.fixated``) whose top borders the ground (``fovea.top_against_other``:
-        at most 1 - ``fovea.WHOLE`` of its columns meet another ROI, the share the outline
-        may miss), and kept at the object's position
+        fixates (``fovea.fixated``); where more than 1 - ``fovea.WHOLE`` of its top's
+        columns meet another ROI (``fovea.top_against_other``) only a round outline counts
+        (a step between two objects adds departure), and kept at the object's position
         (``fovea.FoveaLooks``: the median of its last looks), like the weight. The touch ones are
         known where a haptic reading with tactile contacts lies near, like W.
         """
@@ -301,13 +301,13 @@ class Perception:
             if math.isfinite(a):
                 extra[_A], extra_known[_A] = a, True
             if frame.fovea is not None and frame.fovea_camera is not None \
-                    and fixated(blob.mask, blob.bbox, frame.camera) \
-                    and top_against_other(blob.mask, blob.bbox, labels, own) <= 1.0 - WHOLE:
+                    and fixated(blob.mask, blob.bbox, frame.camera):
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:
                     self._fovea_steps = (frame.fovea, fovea_steps(frame.fovea))
+                against = top_against_other(blob.mask, blob.bbox, labels, own) > 1.0 - WHOLE
                 o = outline_feature(frame.fovea, frame.fovea_camera, frame.camera,
                                     frame.left_pose, blob.mask, blob.bbox, position,
-                                    self._fovea_steps[1])
+                                    self._fovea_steps[1], round_only=against)
                 if math.isfinite(o):
                     self.fovea_looks.add(position, o)
         o_near = self.fovea_looks.near(position)
