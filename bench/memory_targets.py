@@ -17,9 +17,12 @@ of reach, crowded) to OUT/worlds, runs
 prints, per run, the figures the project is judged by (computed as
 shared/tools/run_figures.py computes them): identification and novelty precision (1.0
 when there was none), new objects against the categories the window showed, objects
-visited, empty attention shifts. ``replay`` replays recorded query sets through fresh
-memories (``roger_experiments.record_queries.replay``) and prints per world the false
-novelty and false identification rates of the final trials, and the memory's counts
+visited, empty attention shifts, and whether the run meets issue 16's three targets
+(identification >= 0.95, novelty >= 0.9, new objects within one of the categories) and
+issue 38's (the same, new objects at most one more than the categories). ``replay``
+replays recorded query sets through fresh memories
+(``roger_experiments.record_queries.replay``) and prints per world the false novelty and
+false identification rates of the final trials, and the memory's counts
 (vetoes, non-final identifications held back for want of the weight, refinements).
 ``--unknown`` marks the named features unknown in every recorded look before the replay
 (the memory then decides without them: an ablation of a feature, not of the network).
@@ -119,12 +122,18 @@ def closed_loop(args: argparse.Namespace) -> None:
         compare(world_path, seeds, out, run_one)
         for run in sorted((out / "runs").iterdir()):
             f = figures(run, world_path)
+            # Issue 16's three targets: new objects within one of the categories seen.
             ok = (f["id"] >= 0.95 and f["nov"] >= 0.9
                   and abs(f["new"] - f["categories_visited"]) <= 1)
+            # Issue 38's: at most one more (fewer, where a category was never decided,
+            # is no failure of novelty).
+            ok38 = (f["id"] >= 0.95 and f["nov"] >= 0.9
+                    and f["new"] <= f["categories_visited"] + 1)
             line = (f"{name:18} {run.name:24} id={f['id']:.2f} nov={f['nov']:.2f} "
                     f"new={f['new']} categories_visited={f['categories_visited']} "
                     f"visited={f['visited']} empty={f['empty']} "
-                    f"{'meets' if ok else 'misses'}")
+                    f"{'meets' if ok else 'misses'} "
+                    f"issue38={'meets' if ok38 else 'misses'}")
             print(line, flush=True)
             lines.append(line)
     (args.out / "figures.txt").write_text("\n".join(lines) + "\n")
