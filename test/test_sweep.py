@@ -772,3 +772,27 @@ def test_a_killed_runs_scratch_folder_is_removed_by_the_next_run(tmp_path, monke
                                              "other-dead"))
     assert remove_orphan_scratch(tmp_path) == 0  # the live maker's folders stay
     assert made.exists()
+
+
+def test_a_job_runs_in_an_empty_folder_whatever_an_earlier_run_left_there(tmp_path):
+    """``SequentialRunner`` gives each run an empty folder, as RayRunner does: a graph run
+    loads the memory.pt it finds there, so an earlier run's long-term memory must not be
+    left for it (a second ``make demo`` stored nothing)."""
+    out = tmp_path / "runs" / "qlearning_seed0"
+    out.mkdir(parents=True)
+    (out / "memory.pt").write_bytes(b"an earlier run's memory")
+    (out / "state").mkdir()
+    (out / "state" / "sim.json").write_text("{}")
+    seen: list[list[str]] = []
+
+    def run_fn(spec, folder):
+        seen.append(sorted(p.name for p in folder.rglob("*")) if folder.exists() else [])
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "metrics.json").write_text("{}")
+        return {"cycles": 1}
+
+    spec = RunSpec("w.yaml", "objects: []\n", "qlearning", 0, 1, "extended")
+    results = list(SequentialRunner(run_fn)([Job(spec, out), Job(spec, out)]))
+    assert [m for _, m in results] == [{"cycles": 1}, {"cycles": 1}]
+    assert seen == [[], []]
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]

@@ -193,7 +193,14 @@ def materialized_qtable(spec: RunSpec, out: Path) -> Iterator[tuple[Path | None,
 class SequentialRunner:
     """Runs the jobs one after another in this process with ``run`` (in process or the
     graph), straight into their folders. A failing run stops the runner unless
-    ``keep_going``."""
+    ``keep_going``.
+
+    Each run gets an empty folder, as ``RunFn`` promises and ``RayRunner`` gives (it
+    replaces the old folder with the new run's files): whatever an earlier run left in
+    the job's folder is removed first. A graph run loads the ``memory.pt`` it finds in its
+    folder, so a second ``make demo`` into ``runs/demo`` started every run with the first
+    one's long-term memory and stored nothing (docs/experiments.md).
+    """
 
     run: RunFn = run_in_process
     keep_going: bool = False
@@ -201,6 +208,8 @@ class SequentialRunner:
     def __call__(self, jobs: Sequence[Job]) -> Iterator[tuple[Job, dict[str, Any] | Exception]]:
         for job in jobs:
             assert isinstance(job.spec, RunSpec)
+            if job.out.exists():
+                shutil.rmtree(job.out)
             try:
                 metrics = self.run(job.spec, job.out)
             except Exception as exc:
