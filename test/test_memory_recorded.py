@@ -128,7 +128,9 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
                                creased_unused=np.array([n in ext_unused for n in names]),
                                straight=straight,
                                straight_vetoing=np.array([n in STRAIGHT_VETO_FEATURES
-                                                          for n in names]))
+                                                          for n in names]),
+                               curved=creased_looks(x, known, names.index("TK"),
+                                                    defaults.flat_curvature))
     # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
     assert 0.2 < flat.mean() < 0.6
     assert cal.flat_veto is not None
@@ -147,6 +149,17 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     assert cal.noise_dof == pytest.approx(ext.noise_dof, abs=0.1)
     np.testing.assert_allclose(cal.veto, ext.veto, rtol=0.01, atol=5e-4)
     np.testing.assert_allclose(cal.feature_weight, ext.feature_weight, rtol=0.01, atol=2e-3)
+    # Between two creased looks (prisms) and two curved ones (spheres) their own scales:
+    # wider in what turns with the view (a prism's shading, a sphere's brightest surface,
+    # outline and touched curvature), never narrower than all looks'.
+    assert cal.creased_scale is not None and cal.curved_scale is not None
+    np.testing.assert_allclose(cal.creased_scale, ext.creased_scale, rtol=0.01, atol=5e-5)
+    np.testing.assert_allclose(cal.curved_scale, ext.curved_scale, rtol=0.01, atol=5e-5)
+    assert np.all(cal.creased_scale >= cal.feature_scale)
+    assert np.all(cal.curved_scale >= cal.feature_scale)
+    assert cal.creased_scale[names.index("I1")] > 1.5 * cal.feature_scale[names.index("I1")]
+    for f in ("A", "O", "TK"):
+        assert cal.curved_scale[names.index(f)] > 1.5 * cal.feature_scale[names.index(f)]
     # The paper's eleven keep their place and the config of each mode takes its own.
     assert MemoryConfig.for_mode("extended").feature_scale == ext.feature_scale
     assert MemoryConfig.for_mode("paper").feature_scale == CALIBRATED_FEATURE_SCALE
