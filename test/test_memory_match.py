@@ -376,6 +376,47 @@ def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> No
     assert MemoryConfig.for_mode("paper").creased_unused == ()
 
 
+def test_between_two_curved_looks_each_feature_counts_on_the_curved_scale() -> None:
+    """A sphere's brightest surface A turns with its bearing: between two looks whose
+    touches found a curved top (TK >= flat_curvature) A's difference is measured on the
+    curved looks' scale (``curved_scale``), in the network and in the memory's own
+    distance alike; between two flat looks on the scale of all looks."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    a, tk, tc = names.index("A"), names.index("TK"), names.index("TC")
+    assert cfg.curved_scale[a] > 1.5 * cfg.feature_scale[a]
+    known = np.ones(len(names), bool)
+    weight = np.asarray(cfg.feature_weight)
+    step = 3.0 * np.sqrt(2.0) * cfg.feature_scale[a]  # z 3 on the scale of all looks
+    out = {}
+    for kind, curvature in (("curved", 0.5), ("flat", 0.02)):
+        x = np.full(len(names), 0.4)
+        x[tk], x[tc] = curvature, 0.0
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[a] += step
+        out[kind] = (float(memory.distances(q, known)[0]),
+                     memory.decide(q, known, final_trial=True).distance)
+    z_curved = step / (np.sqrt(2.0) * cfg.curved_scale[a])
+    assert out["curved"][0] == pytest.approx(
+        np.sqrt(weight[a] * z_curved ** 2 / weight.sum()), rel=1e-4)
+    assert out["flat"][0] == pytest.approx(np.sqrt(weight[a] * 9.0 / weight.sum()), rel=1e-4)
+    # The network measures the same way (its trained scales and centres move a little).
+    assert out["curved"][1] < 0.7 * out["flat"][1]
+    # With the curved scale set to all looks' the rule is off: the same distance as flat.
+    off = AssociativeMemory(MemoryConfig.for_mode("extended",
+                                                  curved_scale=cfg.feature_scale), seed=3)
+    x = np.full(len(names), 0.4)
+    x[tk], x[tc] = 0.5, 0.0
+    off.store(x, known)
+    q = x.copy()
+    q[a] += step
+    assert float(off.distances(q, known)[0]) == pytest.approx(out["flat"][0], rel=1e-4)
+    assert MemoryConfig.for_mode("paper").curved_scale == MemoryConfig.for_mode(
+        "paper").feature_scale
+
+
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:
     x = _distinct_patterns(2, seed=16)
     rng = np.random.default_rng(6)
