@@ -419,13 +419,13 @@ class _Fit:
     between_scale: np.ndarray
     weight: np.ndarray
     share: float
-    flat_fit: _Fit | None = None
-    straight_fit: _Fit | None = None
     #: Per pair, the scales its distance uses: (n0, F) look-to-look for the same-entry
     #: pairs, (n1, F) category for the between-entry ones (a kind's own between two looks
     #: of one kind).
-    s0: np.ndarray | None = None
-    s1: np.ndarray | None = None
+    s0: np.ndarray
+    s1: np.ndarray
+    flat_fit: _Fit | None = None
+    straight_fit: _Fit | None = None
     #: Per kind (creased, curved), its category scale (None: no such looks).
     kind_scale: tuple[np.ndarray | None, ...] = ()
 
@@ -503,8 +503,8 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
             m = np.asarray(mask, bool)
             s0[m[i0] & m[j0]] = kind_scales(entry_scale, sub.entry_scale)
             s1[m[i1] & m[j1]] = kind_scale[-1]
-    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit,
-                straight_fit, s0, s1, tuple(kind_scale))
+    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, s0, s1,
+                flat_fit, straight_fit, tuple(kind_scale))
 
 
 def kind_scales(scale: np.ndarray, kind: np.ndarray) -> np.ndarray:
