@@ -253,11 +253,14 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     # O 0.564; W's and D's beyond their veto now (0.040, 0.035). Alone each stays within
     # the acceptance distance.
     # TC (a crease the probes can miss) never vetoes either; TK, measured on smooth
-    # surfaces, does.
+    # surfaces, does (here between a flat top, TK 0.05, and a curved one).
     for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
                                  ("TC", 0.5, False), ("W", 0.045, True), ("D", 0.042, True),
                                  ("TK", 0.3, True)):
         memory = AssociativeMemory(cfg, seed=3)
+        if name == "TK":
+            x = x.copy()
+            x[names.index("TK")] = 0.05
         memory.store(x, known)
         q = x.copy()
         q[names.index(name)] += offset
@@ -415,6 +418,29 @@ def test_between_two_curved_looks_each_feature_counts_on_the_curved_scale() -> N
     assert float(off.distances(q, known)[0]) == pytest.approx(out["flat"][0], rel=1e-4)
     assert MemoryConfig.for_mode("paper").curved_scale == MemoryConfig.for_mode(
         "paper").feature_scale
+
+
+def test_between_two_curved_looks_the_veto_widens_with_the_curved_scale() -> None:
+    """A sphere's copies differ in TK by up to a quarter (its touches land elsewhere on
+    it): between two curved looks TK's veto widens by curved_scale / feature_scale, as
+    the veto is one object's repeats scaled to its category's spread; between a curved
+    and a flat look the same difference still vetoes."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    tk, tc = names.index("TK"), names.index("TC")
+    assert cfg.veto[tk] < 0.25 < cfg.veto[tk] * cfg.curved_scale[tk] / cfg.feature_scale[tk]
+    known = np.ones(len(names), bool)
+    for stored_tk, vetoed in ((0.75, False), (0.25, False), (0.05, True)):
+        x = np.full(len(names), 0.4)
+        x[tc], x[tk] = 0.0, stored_tk
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[tk] = stored_tk + 0.25 if stored_tk < 0.5 else stored_tk - 0.25
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.vetoed is vetoed, stored_tk
+        assert decision.result.outcome == (MatchOutcome.NEW if vetoed
+                                           else MatchOutcome.IDENTIFIED), stored_tk
 
 
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:

@@ -50,7 +50,7 @@ from roger_common.types import (
     feature_dim,
     feature_names,
 )
-from roger_memory.calibration import creased_looks, flat_looks, rms_z
+from roger_memory.calibration import NO_VETO, creased_looks, flat_looks, rms_z
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -193,7 +193,18 @@ class AssociativeMemory:
         other, other_known = np.asarray(other), np.asarray(other_known, bool)
         if (self._flat_columns is None or not self._flat(features, known)
                 or not self._flat(other, other_known)):
-            return self._veto
+            # Between two looks of one kind (creased, curved) the veto widens with the
+            # kind's category scale, as it was scaled from one object's repeats to the
+            # category's spread (calibration.calibrate): a sphere's copies differ in TK
+            # ten times a flat top's.
+            veto = self._veto
+            for col, least, factor in self._gates:
+                if (known[col] and other_known[col] and features[col] >= least
+                        and other[col] >= least):
+                    widen = np.where(factor > 0, 1.0 / np.sqrt(np.where(factor > 0, factor,
+                                                                        1.0)), 1.0)
+                    veto = np.minimum(NO_VETO, veto * widen).astype(np.float32)
+            return veto
         o = self._outline_column
         if (o is not None and known[o] and other_known[o]
                 and min(features[o], other[o]) >= self._config.straight_outline):
