@@ -253,14 +253,11 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     # O 0.564; W's and D's beyond their veto now (0.040, 0.035). Alone each stays within
     # the acceptance distance.
     # TC (a crease the probes can miss) never vetoes either; TK, measured on smooth
-    # surfaces, does (here between a flat top, TK 0.05, and a curved one).
+    # surfaces, does.
     for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
                                  ("TC", 0.5, False), ("W", 0.045, True), ("D", 0.042, True),
                                  ("TK", 0.3, True)):
         memory = AssociativeMemory(cfg, seed=3)
-        if name == "TK":
-            x = x.copy()
-            x[names.index("TK")] = 0.05
         memory.store(x, known)
         q = x.copy()
         q[names.index(name)] += offset
@@ -377,70 +374,6 @@ def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> No
     assert one[2] > both[2] + 0.5 and none[2] > both[2] + 0.5
     # The paper mode has no crease to read.
     assert MemoryConfig.for_mode("paper").creased_unused == ()
-
-
-def test_between_two_curved_looks_each_feature_counts_on_the_curved_scale() -> None:
-    """A sphere's brightest surface A turns with its bearing: between two looks whose
-    touches found a curved top (TK >= flat_curvature) A's difference is measured on the
-    curved looks' scale (``curved_scale``), in the network and in the memory's own
-    distance alike; between two flat looks on the scale of all looks."""
-    cfg = MemoryConfig.for_mode("extended")
-    names = feature_names("extended")
-    a, tk, tc = names.index("A"), names.index("TK"), names.index("TC")
-    assert cfg.curved_scale[a] > 1.5 * cfg.feature_scale[a]
-    known = np.ones(len(names), bool)
-    weight = np.asarray(cfg.feature_weight)
-    step = 3.0 * np.sqrt(2.0) * cfg.feature_scale[a]  # z 3 on the scale of all looks
-    out = {}
-    for kind, curvature in (("curved", 0.5), ("flat", 0.02)):
-        x = np.full(len(names), 0.4)
-        x[tk], x[tc] = curvature, 0.0
-        memory = AssociativeMemory(cfg, seed=3)
-        memory.store(x, known)
-        q = x.copy()
-        q[a] += step
-        out[kind] = (float(memory.distances(q, known)[0]),
-                     memory.decide(q, known, final_trial=True).distance)
-    z_curved = step / (np.sqrt(2.0) * cfg.curved_scale[a])
-    assert out["curved"][0] == pytest.approx(
-        np.sqrt(weight[a] * z_curved ** 2 / weight.sum()), rel=1e-4)
-    assert out["flat"][0] == pytest.approx(np.sqrt(weight[a] * 9.0 / weight.sum()), rel=1e-4)
-    # The network measures the same way (its trained scales and centres move a little).
-    assert out["curved"][1] < 0.7 * out["flat"][1]
-    # With the curved scale set to all looks' the rule is off: the same distance as flat.
-    off = AssociativeMemory(MemoryConfig.for_mode("extended",
-                                                  curved_scale=cfg.feature_scale), seed=3)
-    x = np.full(len(names), 0.4)
-    x[tk], x[tc] = 0.5, 0.0
-    off.store(x, known)
-    q = x.copy()
-    q[a] += step
-    assert float(off.distances(q, known)[0]) == pytest.approx(out["flat"][0], rel=1e-4)
-    assert MemoryConfig.for_mode("paper").curved_scale == MemoryConfig.for_mode(
-        "paper").feature_scale
-
-
-def test_between_two_curved_looks_the_veto_widens_with_the_curved_scale() -> None:
-    """A sphere's copies differ in TK by up to a quarter (its touches land elsewhere on
-    it): between two curved looks TK's veto widens by curved_scale / feature_scale, as
-    the veto is one object's repeats scaled to its category's spread; between a curved
-    and a flat look the same difference still vetoes."""
-    cfg = MemoryConfig.for_mode("extended")
-    names = feature_names("extended")
-    tk, tc = names.index("TK"), names.index("TC")
-    assert cfg.veto[tk] < 0.25 < cfg.veto[tk] * cfg.curved_scale[tk] / cfg.feature_scale[tk]
-    known = np.ones(len(names), bool)
-    for stored_tk, vetoed in ((0.75, False), (0.25, False), (0.05, True)):
-        x = np.full(len(names), 0.4)
-        x[tc], x[tk] = 0.0, stored_tk
-        memory = AssociativeMemory(cfg, seed=3)
-        memory.store(x, known)
-        q = x.copy()
-        q[tk] = stored_tk + 0.25 if stored_tk < 0.5 else stored_tk - 0.25
-        decision = memory.decide(q, known, final_trial=True)
-        assert decision.vetoed is vetoed, stored_tk
-        assert decision.result.outcome == (MatchOutcome.NEW if vetoed
-                                           else MatchOutcome.IDENTIFIED), stored_tk
 
 
 def test_a_store_keeps_the_looks_of_its_focus_that_show_the_same_object() -> None:

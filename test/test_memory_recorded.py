@@ -128,9 +128,7 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
                                creased_unused=np.array([n in ext_unused for n in names]),
                                straight=straight,
                                straight_vetoing=np.array([n in STRAIGHT_VETO_FEATURES
-                                                          for n in names]),
-                               curved=creased_looks(x, known, names.index("TK"),
-                                                    defaults.flat_curvature))
+                                                          for n in names]))
     # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
     assert 0.2 < flat.mean() < 0.6
     assert cal.flat_veto is not None
@@ -149,49 +147,9 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     assert cal.noise_dof == pytest.approx(ext.noise_dof, abs=0.1)
     np.testing.assert_allclose(cal.veto, ext.veto, rtol=0.01, atol=5e-4)
     np.testing.assert_allclose(cal.feature_weight, ext.feature_weight, rtol=0.01, atol=2e-3)
-    # Between two creased looks (prisms) and two curved ones (spheres) their own scales:
-    # wider in what turns with the view (a prism's shading, a sphere's brightest surface,
-    # outline and touched curvature), never narrower than all looks'.
-    assert cal.creased_scale is not None and cal.curved_scale is not None
-    np.testing.assert_allclose(cal.creased_scale, ext.creased_scale, rtol=0.01, atol=5e-5)
-    np.testing.assert_allclose(cal.curved_scale, ext.curved_scale, rtol=0.01, atol=5e-5)
-    assert np.all(cal.creased_scale >= cal.feature_scale)
-    assert np.all(cal.curved_scale >= cal.feature_scale)
-    assert cal.creased_scale[names.index("I1")] > 1.5 * cal.feature_scale[names.index("I1")]
-    for f in ("A", "O", "TK"):
-        assert cal.curved_scale[names.index(f)] > 1.5 * cal.feature_scale[names.index(f)]
     # The paper's eleven keep their place and the config of each mode takes its own.
     assert MemoryConfig.for_mode("extended").feature_scale == ext.feature_scale
     assert MemoryConfig.for_mode("paper").feature_scale == CALIBRATED_FEATURE_SCALE
-
-
-def test_a_kind_of_look_gets_its_own_scale_only_where_it_spreads_wider() -> None:
-    """Synthetic looks: 12 categories, 3 copies each, 4 looks per copy; the copies of the
-    "curved" half spread five times wider in feature 0 and half as wide in feature 1.
-    Calibrated with that half marked, its scale is wider in feature 0 and never narrower
-    than all looks' (feature 1 keeps all looks' scale); unmarked, there is none."""
-    rng = np.random.default_rng(7)
-    x, entry, curved = [], [], []
-    for c in range(12):
-        centre = rng.random(8)
-        spread = np.full(8, 0.01)
-        if c % 2:
-            spread[0], spread[1] = 0.05, 0.005
-        for e in range(3):
-            copy = centre + rng.normal(0.0, 1.0, 8) * spread
-            for _ in range(4):
-                x.append(copy + rng.normal(0.0, 0.003, 8))
-                entry.append(c * 3 + e)
-                curved.append(bool(c % 2))
-    x = np.clip(np.array(x), 0.0, 1.0)
-    k = np.ones_like(x, bool)
-    run, entry_a, mask = np.zeros(len(x)), np.array(entry), np.array(curved)
-    cal = calibrate(x, k, run, entry_a, curved=mask)
-    assert cal.curved_scale is not None
-    assert cal.curved_scale[0] > 1.3 * cal.feature_scale[0]
-    assert np.all(cal.curved_scale >= cal.feature_scale)
-    assert cal.curved_scale[1] == pytest.approx(cal.feature_scale[1])
-    assert calibrate(x, k, run, entry_a).curved_scale is None
 
 
 def test_information_weights_follow_what_a_feature_tells_apart() -> None:

@@ -81,10 +81,6 @@ class Calibration:
             (``straight_looks``: a box's top) and the features of ``straight_vetoing``,
             measured on those looks alone (None when none was marked; docs/memory.md,
             "The grey between two straight-edged tops").
-        creased_scale: Per feature, the category scale between two creased looks
-            (``creased``), fitted on those looks alone (``feature_scale`` where none were
-            marked; docs/memory.md, "Each kind of top on its own scale").
-        curved_scale: The same between two curved looks (``curved``).
     """
 
     feature_scale: np.ndarray
@@ -100,8 +96,6 @@ class Calibration:
     between_accepted: float = float("nan")
     flat_veto: np.ndarray | None = None
     straight_veto: np.ndarray | None = None
-    creased_scale: np.ndarray | None = None
-    curved_scale: np.ndarray | None = None
 
 
 def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
@@ -287,8 +281,7 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
               vetoing: np.ndarray | None = None, flat: np.ndarray | None = None,
               flat_vetoing: np.ndarray | None = None, creased: np.ndarray | None = None,
               creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
-              straight_vetoing: np.ndarray | None = None, curved: np.ndarray | None = None
-              ) -> Calibration:
+              straight_vetoing: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -327,11 +320,6 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
             none).
         straight_vetoing: (F,) features that veto between two straight-edged flat looks
             (``Calibration.straight_veto``; None: none).
-        curved: (n,) looks whose object the hand found curved (``creased_looks`` on the
-            curvature TK; None: none). Between two creased looks, and between two curved
-            ones, every feature is measured on that kind's own scales (fitted on those
-            looks alone), in the acceptance distance and the veto's repeats as in the
-            memory.
 
     Returns:
         The Calibration.
@@ -340,7 +328,7 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         ValueError: Too few pairs of either kind to estimate a scale.
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused, straight, curved)
+               creased, creased_unused, straight)
     return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing,
                    flat_vetoing, straight_vetoing)
 
@@ -361,7 +349,7 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None,
                  creased: np.ndarray | None = None, creased_unused: np.ndarray | None = None,
                  straight: np.ndarray | None = None,
-                 straight_vetoing: np.ndarray | None = None, curved: np.ndarray | None = None
+                 straight_vetoing: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -374,14 +362,14 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
-    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased``, ``creased_unused``, ``straight``,
-    ``straight_vetoing`` and ``curved`` as ``calibrate``'s.
+    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased``, ``creased_unused``, ``straight``
+    and ``straight_vetoing`` as ``calibrate``'s.
 
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused, straight, curved)
+               creased, creased_unused, straight)
     scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
                              min_common, cap)
               for cap in caps}
@@ -395,15 +383,15 @@ def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: flo
     """The acceptance distance: the ``identify_quantile`` of the weighted RMS z of the
     robot's own repeats (same-entry pairs, z in their own scale)."""
     n_common = fit.c0.sum(axis=1)
-    own = rms_z(fit.d0, fit.c0, fit.s0, fit.weight, z_cap)[n_common >= min_common]
+    own = rms_z(fit.d0, fit.c0, fit.entry_scale, fit.weight, z_cap)[n_common >= min_common]
     return float(np.quantile(own, identify_quantile))
 
 
 def _accepted(fit: _Fit, identify_distance: float, min_common: int, z_cap: float) -> float:
     """Share of the between-entry pairs within ``identify_distance`` (category scale)."""
     between = fit.c1.sum(axis=1) >= min_common
-    return float(np.mean(rms_z(fit.d1[between], fit.c1[between], fit.s1[between],
-                               fit.weight, z_cap) <= identify_distance))
+    return float(np.mean(rms_z(fit.d1[between], fit.c1[between], fit.scale, fit.weight,
+                               z_cap) <= identify_distance))
 
 
 @dataclass(frozen=True)
@@ -419,22 +407,15 @@ class _Fit:
     between_scale: np.ndarray
     weight: np.ndarray
     share: float
-    #: Per pair, the scales its distance uses: (n0, F) look-to-look for the same-entry
-    #: pairs, (n1, F) category for the between-entry ones (a kind's own between two looks
-    #: of one kind).
-    s0: np.ndarray
-    s1: np.ndarray
     flat_fit: _Fit | None = None
     straight_fit: _Fit | None = None
-    #: Per kind (creased, curved), its category scale (None: no such looks).
-    kind_scale: tuple[np.ndarray | None, ...] = ()
 
 
 def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
          outlier_share: float, iterations: int, max_pairs: int, seed: int,
          flat: np.ndarray | None = None, creased: np.ndarray | None = None,
-         creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
-         curved: np.ndarray | None = None) -> _Fit:
+         creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None
+         ) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
     scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
@@ -491,30 +472,8 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
     flat_fit, straight_fit = (
         _sub_fit(x, k, run, entry, mask, outlier_share, iterations, max_pairs, seed)
         for mask in (flat, straight))
-    # Between two creased looks, and between two curved ones, that kind's own scales: the
-    # same fit on those looks alone.
-    s0 = np.broadcast_to(entry_scale, d0.shape).copy()
-    s1 = np.broadcast_to(scale, d1.shape).copy()
-    kind_scale: list[np.ndarray | None] = []
-    for mask in (creased, curved):
-        sub = _sub_fit(x, k, run, entry, mask, outlier_share, iterations, max_pairs, seed)
-        kind_scale.append(None if sub is None else kind_scales(scale, sub.scale))
-        if sub is not None:
-            m = np.asarray(mask, bool)
-            s0[m[i0] & m[j0]] = kind_scales(entry_scale, sub.entry_scale)
-            s1[m[i1] & m[j1]] = kind_scale[-1]
-    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, s0, s1,
-                flat_fit, straight_fit, tuple(kind_scale))
-
-
-def kind_scales(scale: np.ndarray, kind: np.ndarray) -> np.ndarray:
-    """A kind of look's scales as the distance uses them: the larger of all looks' scale
-    and the kind's own (fitted on its looks alone), per feature. A kind only widens a
-    scale: its looks come from a few categories (the extended set's spheres), and where
-    they read steadier than all looks that is as likely their few categories as the kind
-    (narrowing too stored more copies again in replay: docs/memory.md, "Each kind of top
-    on its own scale")."""
-    return np.maximum(np.asarray(scale, np.float64), np.asarray(kind, np.float64))
+    return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit,
+                straight_fit)
 
 
 def _sub_fit(x: np.ndarray, k: np.ndarray, run: np.ndarray, entry: np.ndarray,
@@ -556,7 +515,7 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]
-                  & (rms_z(d0, others, fit.s0, weight, z_cap) <= identify_distance))
+                  & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
         veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
                    * scale[f] / entry_scale[f])
     if vetoing is not None:
@@ -576,9 +535,7 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
                        same_share=fit.share,
                        pairs_same_entry=len(d0), pairs_between=len(d1),
                        between_accepted=accepted, flat_veto=flat_veto,
-                       straight_veto=straight_veto,
-                       creased_scale=fit.kind_scale[0] if fit.kind_scale else None,
-                       curved_scale=fit.kind_scale[1] if fit.kind_scale else None)
+                       straight_veto=straight_veto)
 
 
 def _sub_veto(sub: _Fit | None, vetoing: np.ndarray | None, n_feat: int,

@@ -53,7 +53,7 @@ EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
     1.643, 1.264, 1.061, 0.567, 0.494, 0.529,
     0.412, 0.360, 0.125, 1.804, 3.261, 0.573,
     1.562, 1.685, 0.749, 0.475, 0.436)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.23
+EXTENDED_IDENTIFY_DISTANCE: float = 2.35
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -82,9 +82,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0378, 0.0396, 0.2376,
-    1.0, 1.0, 0.0233, 0.2117, 1.0)
-EXTENDED_NOISE_DOF: float = 4.72
+    1.0, 1.0, 1.0, 0.0378, 0.0396, 0.2377,
+    1.0, 1.0, 0.0233, 0.2066, 1.0)
+EXTENDED_NOISE_DOF: float = 4.27
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -103,7 +103,7 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0739, 0.0903, 1.0, 1.0, 1.0)
+    0.0813, 0.0994, 1.0, 1.0, 1.0)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -121,7 +121,7 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1092
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0242, 1.0, 1.0, 1.0)
+    1.0, 0.0266, 1.0, 1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
@@ -129,28 +129,11 @@ EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
 #: the one feature that parts them (docs/memory.md, "The outline between two creased
 #: looks").
 CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O",)
-#: The extended mode's category scales between two creased looks (TC >= ``flat_crease``
-#: in both: prisms) and between two curved looks (TK >= ``flat_curvature`` in both:
-#: spheres): per feature the larger of ``EXTENDED_FEATURE_SCALE`` and the scale measured
-#: the same way on those looks alone (``calibration.calibrate``'s ``creased_scale`` and
-#: ``curved_scale``). A sphere's brightest surface and outline turn with its bearing and
-#: its touched curvature spreads ten times a flat top's; a prism's shading turns with
-#: its yaw: between two looks of one such kind their own spread is the measure, not the
-#: spread of all looks, which flat tops make (docs/memory.md, "Each kind of top on its
-#: own scale").
-EXTENDED_CREASED_SCALE: tuple[float, ...] = (
-    0.05054, 0.06365, 0.05685, 0.01063, 0.00645, 0.00629,
-    0.03727, 0.02981, 0.02276, 0.00514, 0.01041, 0.02719,
-    0.01474, 0.02113, 0.00141, 0.00504, 0.02472)
-EXTENDED_CURVED_SCALE: tuple[float, ...] = (
-    0.02609, 0.03843, 0.04748, 0.00582, 0.01212, 0.00759,
-    0.02965, 0.02483, 0.02276, 0.00460, 0.01085, 0.02719,
-    0.03629, 0.02808, 0.00163, 0.05216, 0.02472)
-#: The extended mode caps each feature's |z| at 5.0 in every distance (MemoryConfig.z_cap),
+#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.0
+EXTENDED_Z_CAP: float = 5.5
 
 
 @dataclass(frozen=True)
@@ -167,8 +150,6 @@ class Calibrated:
     flat_veto: tuple[float, ...]
     straight_outline: float
     straight_veto: tuple[float, ...]
-    creased_scale: tuple[float, ...]
-    curved_scale: tuple[float, ...]
 
 
 #: The calibrated defaults of each feature mode.
@@ -177,15 +158,13 @@ CALIBRATED: dict[FeatureMode, Calibrated] = {
                                   CALIBRATED_IDENTIFY_DISTANCE, CALIBRATED_VETO,
                                   CALIBRATED_NOISE_DOF, ("W",), 0.0,
                                   (1.0,) * len(CALIBRATED_VETO), 1.0,
-                                  (1.0,) * len(CALIBRATED_VETO), CALIBRATED_FEATURE_SCALE,
-                                  CALIBRATED_FEATURE_SCALE),
+                                  (1.0,) * len(CALIBRATED_VETO)),
     FeatureMode.EXTENDED: Calibrated(EXTENDED_FEATURE_SCALE, EXTENDED_FEATURE_WEIGHT,
                                      EXTENDED_IDENTIFY_DISTANCE, EXTENDED_VETO,
                                      EXTENDED_NOISE_DOF,
                                      TOUCH_FEATURE_NAMES + FOVEA_FEATURE_NAMES,
                                      EXTENDED_Z_CAP, EXTENDED_FLAT_VETO,
-                                     EXTENDED_STRAIGHT_OUTLINE, EXTENDED_STRAIGHT_VETO,
-                                     EXTENDED_CREASED_SCALE, EXTENDED_CURVED_SCALE),
+                                     EXTENDED_STRAIGHT_OUTLINE, EXTENDED_STRAIGHT_VETO),
 }
 _DEFAULT = CALIBRATED[DEFAULT_FEATURE_MODE]
 
@@ -240,12 +219,6 @@ class MemoryConfig:
             found a crease (TC >= ``flat_crease``, known in both; extended mode: O, which
             turns with a prism's yaw; () in the paper mode, which has no crease; () in the
             extended mode turns the rule off). Everywhere else they count.
-        creased_scale: Per feature, the category scale between two creased looks (TC >=
-            ``flat_crease``, known in both; calibrated on such looks alone;
-            ``feature_scale`` in the paper mode, which has no crease).
-        curved_scale: Per feature, the category scale between two curved looks (TK >=
-            ``flat_curvature``, known in both; calibrated on such looks alone;
-            ``feature_scale`` in the paper mode).
         min_common_features: Fewest features known both in the query and in a stored look
             for that look's unit to answer.
         identify_share: Smallest winner-take-all share of the winning address for a
@@ -308,10 +281,6 @@ class MemoryConfig:
         "live": True})
     creased_unused: tuple[str, ...] = field(default=CREASED_UNUSED_FEATURES, metadata={
         "doc": "Features left out between two creased looks (names of the mode's features)"})
-    creased_scale: tuple[float, ...] = field(default=_DEFAULT.creased_scale, metadata={
-        "doc": "Calibrated spread of one look of a creased category (a prism), per feature"})
-    curved_scale: tuple[float, ...] = field(default=_DEFAULT.curved_scale, metadata={
-        "doc": "Calibrated spread of one look of a curved category (a sphere), per feature"})
     min_common_features: int = field(default=6, metadata={
         "doc": "Fewest common known features for a stored look to answer"})
     identify_share: float = field(default=0.5, metadata={
@@ -362,8 +331,6 @@ class MemoryConfig:
         names = feature_names(mode)
         # Per-feature tuples: scales and vetoes positive; weights >= 0, not all 0.
         for name, kind in (("feature_scale", "positive numbers"),
-                           ("creased_scale", "positive numbers"),
-                           ("curved_scale", "positive numbers"),
                            ("veto", "positive numbers"), ("flat_veto", "positive numbers"),
                            ("straight_veto", "positive numbers"),
                            ("feature_weight", "numbers >= 0")):

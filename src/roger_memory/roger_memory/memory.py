@@ -32,7 +32,6 @@ acceptance radius from what was stored (no chaining, docs/memory.md).
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,7 +49,7 @@ from roger_common.types import (
     feature_dim,
     feature_names,
 )
-from roger_memory.calibration import NO_VETO, creased_looks, flat_looks, rms_z
+from roger_memory.calibration import creased_looks, flat_looks, rms_z, uncreased_common
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -169,20 +168,11 @@ class AssociativeMemory:
         # The straight-edged tops' veto needs the outline (extended mode).
         self._outline_column = (names.index("O") if "O" in names
                                 and np.any(self._straight_veto < self._flat_veto) else None)
-        # Between two creased looks, and between two curved ones, each feature counts on
-        # that kind's own category scale (z^2 times (sigma_f / sigma_f of the kind)^2),
-        # and creased_unused not at all between two creased looks.
-        scale = np.asarray(config.feature_scale, np.float64)
-        gates = []
-        for column, least, kind_scale, unused_names in (
-                ("TC", config.flat_crease, config.creased_scale, config.creased_unused),
-                ("TK", config.flat_curvature, config.curved_scale, ())):
-            factor = (scale / np.asarray(kind_scale, np.float64)) ** 2
-            factor[[n in unused_names for n in names]] = 0.0
-            if column in names and not np.allclose(factor, 1.0):
-                gates.append((names.index(column), least, factor))
-        self._gates: tuple[tuple[int, float, np.ndarray], ...] = tuple(gates)
-        self._network.set_gates(self._gates)
+        # Between two creased looks the features of creased_unused count not.
+        unused = np.array([n in config.creased_unused for n in names])
+        self._crease_gate = ((names.index("TC"), config.flat_crease, unused)
+                             if "TC" in names and unused.any() else None)
+        self._network.set_crease_gate(*(self._crease_gate or (None, 0.0, None)))
 
     def veto_between(self, features: np.ndarray, known: np.ndarray,
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
@@ -193,18 +183,7 @@ class AssociativeMemory:
         other, other_known = np.asarray(other), np.asarray(other_known, bool)
         if (self._flat_columns is None or not self._flat(features, known)
                 or not self._flat(other, other_known)):
-            # Between two looks of one kind (creased, curved) the veto widens with the
-            # kind's category scale, as it was scaled from one object's repeats to the
-            # category's spread (calibration.calibrate): a sphere's copies differ in TK
-            # ten times a flat top's.
-            veto = self._veto
-            for col, least, factor in self._gates:
-                if (known[col] and other_known[col] and features[col] >= least
-                        and other[col] >= least):
-                    widen = np.where(factor > 0, 1.0 / np.sqrt(np.where(factor > 0, factor,
-                                                                        1.0)), 1.0)
-                    veto = np.minimum(NO_VETO, veto * widen).astype(np.float32)
-            return veto
+            return self._veto
         o = self._outline_column
         if (o is not None and known[o] and other_known[o]
                 and min(features[o], other[o]) >= self._config.straight_outline):
@@ -267,7 +246,7 @@ class AssociativeMemory:
         x, k = _validate(features, known, self._dim, self._config.features)
         d = _rms_z(self._exemplars, self._known, x, k, np.asarray(self._config.feature_scale),
                    self._config.min_common_features, self._config.feature_weight,
-                   self._config.z_cap, self._gates)
+                   self._config.z_cap, self._crease_gate)
         out = np.full(self.size, np.inf)
         np.minimum.at(out, self._addresses, d)
         return out
@@ -521,7 +500,7 @@ class AssociativeMemory:
             # edge). One copy is kept.
             cx, ck = np.where(fk, fx, x).astype(np.float32), fk | k
             d = _rms_z(cx[None], ck[None], x, k, scale, self._config.min_common_features,
-                       self._config.feature_weight, self._config.z_cap, self._gates)[0]
+                       self._config.feature_weight, self._config.z_cap, self._crease_gate)[0]
             if d <= self._config.identify_distance and not any(
                     np.array_equal(ck, ok) and np.array_equal(cx, ox)
                     for ox, ok in (*kept, (x, k))):
@@ -556,7 +535,7 @@ class AssociativeMemory:
             if self.find_exact(fx, fk) is not None:
                 continue
             d = _rms_z(ox, ok, fx, fk, scale, cfg.min_common_features, cfg.feature_weight,
-                       cfg.z_cap, self._gates)
+                       cfg.z_cap, self._crease_gate)
             if d.size and d.min() <= cfg.identify_distance:
                 self._append(address, fx[None], fk[None], stored=False)
                 added += 1
@@ -594,23 +573,19 @@ class AssociativeMemory:
 
 def _rms_z(xs: np.ndarray, ks: np.ndarray, x: np.ndarray, k: np.ndarray, scale: np.ndarray,
            min_common: int, weight: tuple[float, ...], z_cap: float = 0.0,
-           gates: Sequence[tuple[int, float, np.ndarray]] = ()) -> np.ndarray:
+           crease_gate: tuple[int, float, np.ndarray] | None = None) -> np.ndarray:
     """Weighted RMS over the common known features of z_f = (x_f - xs_f) / (sqrt(2)
     scale_f): sqrt(sum w_f z_f^2 / sum w_f); inf with fewer than ``min_common`` common
-    features (or none of positive weight). ``gates`` (column, least value, factor per
-    feature): where both looks know the column at least at that value (a crease, a
-    curved top), each z_f^2 is multiplied by the factor (0: left out)."""
+    features (or none of positive weight). ``crease_gate`` (crease column, least crease,
+    features): those features are left out where both looks are creased."""
     common = ks & k
-    scales = np.broadcast_to(np.asarray(scale, np.float64), xs.shape).copy()
-    for col, least, factor in gates:
-        if k[col] and x[col] >= least:
-            # The query passes the gate: the looks that do too take the kind's factors.
-            rows = creased_looks(xs, ks, col, least)
-            common[rows] &= factor != 0
-            scales[rows] = np.where(factor > 0, scales[rows] / np.sqrt(
-                np.where(factor > 0, factor, 1.0)), scales[rows])
+    if crease_gate is not None and k[crease_gate[0]] and x[crease_gate[0]] >= crease_gate[1]:
+        # The query is creased: leave the features out against the creased looks.
+        col, least, unused = crease_gate
+        common = uncreased_common(common, creased_looks(xs, ks, col, least),
+                                  np.ones(len(xs), bool), unused)
     n = common.sum(axis=1)
-    d = rms_z(xs - x, common, scales, np.asarray(weight), z_cap)
+    d = rms_z(xs - x, common, scale, np.asarray(weight), z_cap)
     return np.where(n >= min_common, d, np.inf)
 
 

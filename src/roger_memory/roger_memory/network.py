@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 
 import numpy as np
 import torch
@@ -150,22 +150,20 @@ class AssociativeNetwork(nn.Module):
         self.stored: torch.Tensor
         self.unit_known: torch.Tensor
         self.unit_address: torch.Tensor
-        #: Gates (column, least value, factor): between an input and a unit whose looks
-        #: both know the column at least at that value, each feature's z^2 is multiplied
-        #: by its factor: 0 leaves it out (a creased object's outline:
-        #: MemoryConfig.creased_unused), (sigma_f / sigma_f of the kind)^2 measures it on
-        #: the scale of that kind of look (a curved top's: MemoryConfig.curved_scale;
-        #: ``set_gates``). Empty: every common feature counts on its one scale.
-        self.gates: tuple[tuple[int, float, torch.Tensor], ...] = ()
+        #: Between an input and a unit whose looks both found a crease (column, least
+        #: value), the features of the mask count not (MemoryConfig.creased_unused;
+        #: ``set_crease_gate``). None: every common feature counts.
+        self.crease_gate: tuple[int, float, torch.Tensor] | None = None
 
-    def set_gates(self, gates: Sequence[tuple[int, float, np.ndarray]]) -> None:
-        """Multiply each feature's z^2 by the gate's factor between two looks whose value in
-        the gate's column is known and at least its least value (gates whose factors are
-        all 1 are dropped)."""
-        self.gates = tuple((int(col), float(least),
-                            torch.from_numpy(np.asarray(factor, np.float32).copy()))
-                           for col, least, factor in gates
-                           if not np.allclose(np.asarray(factor, np.float64), 1.0))
+    def set_crease_gate(self, crease_index: int | None, crease_min: float,
+                        unused: np.ndarray | None) -> None:
+        """Leave the features of ``unused`` out between two looks whose crease (column
+        ``crease_index``) is known and at least ``crease_min`` (None or no feature: off)."""
+        if crease_index is None or unused is None or not np.any(unused):
+            self.crease_gate = None
+        else:
+            self.crease_gate = (int(crease_index), float(crease_min),
+                                torch.from_numpy(np.asarray(unused, bool).copy()))
 
     @property
     def n_addresses(self) -> int:
@@ -236,7 +234,7 @@ class AssociativeNetwork(nn.Module):
         net.resize(self.n_units, self.n_addresses)
         net.unit_known = self.unit_known.clone()
         net.unit_address = self.unit_address.clone()
-        net.gates = self.gates
+        net.crease_gate = self.crease_gate
         _fill(net.stored, generator, 0.0, 1.0)
         _fill(net.log_scale.data, generator, -0.1, 0.1)
         _fill(net.log_tau.data, generator, -0.1, 0.1)
@@ -258,24 +256,23 @@ class AssociativeNetwork(nn.Module):
         kf = k.to(x.dtype)
         m = self.unit_known.to(x.dtype)
         c = self.centres * m
-        if self.z_cap > 0 or self.gates:
-            # Each feature's z^2 capped (a robust distance), or rescaled or left out between
-            # two creased or two curved looks: one feature per pair of inputs and units,
-            # since neither factors into products.
+        if self.z_cap > 0 or self.crease_gate is not None:
+            # Each feature's z^2 capped (a robust distance), or some left out between two
+            # creased looks: one feature per pair of inputs and units, since neither
+            # factors into products.
             z2 = (x[:, None, :] - c[None, :, :]) ** 2 * (0.5 * torch.exp(-2.0 * self.log_scale))
-            common = kf[:, None, :] * m[None, :, :]
-            gated = False
-            for col, least, factor in self.gates:
-                gated_in = k[:, col] & (x[:, col] >= least)
-                both = gated_in[:, None] & (self.unit_known[:, col]
-                                            & (self.stored[:, col] >= least))[None, :]
-                if bool(gated_in.any()) and bool(both.any()):
-                    # Out where the factor is 0; rescaled (then capped) elsewhere.
-                    z2 = torch.where(both[:, :, None], z2 * factor, z2)
-                    common = common * ~(both[:, :, None] & (factor == 0)[None, None, :])
-                    gated = True
             if self.z_cap > 0:
                 z2 = z2.clamp_max(self.z_cap * self.z_cap)
+            common = kf[:, None, :] * m[None, :, :]
+            gated = False
+            if self.crease_gate is not None:
+                col, least, unused = self.crease_gate
+                creased_in = k[:, col] & (x[:, col] >= least)
+                both = creased_in[:, None] & (self.unit_known[:, col]
+                                              & (self.stored[:, col] >= least))[None, :]
+                if bool(creased_in.any()) and bool(both.any()):
+                    common = common * ~(both[:, :, None] & unused[None, None, :])
+                    gated = True
             sq = (z2 * common * self.feature_weight).sum(dim=2)
             if gated:
                 n = common.sum(dim=2)
@@ -412,9 +409,7 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
     y_all = np.asarray(addresses, np.int64) + 1
     prior_scale = torch.log(torch.tensor(config.feature_scale, dtype=torch.float32))
     prior_tau = torch.tensor(math.log(config.identify_distance), dtype=torch.float32)
-    # A look of a gated kind (a creased or a curved top) repeats, and lies novel, on its
-    # kind's scales, as the network measures it against the looks of its kind.
-    sigma = np.sqrt(2.0) * look_scales(x_all, k_all, config.feature_scale, network.gates)
+    sigma = np.sqrt(2.0) * np.asarray(config.feature_scale)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.learning_rate)
     n_novel = round(config.batch_size * config.novel_fraction)
     n_repeat = config.batch_size - n_novel
@@ -427,7 +422,7 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
             idx = np.concatenate([
                 rng.choice(focus_idx, n_focus) if n_focus else np.zeros(0, np.int64),
                 rng.choice(usable, n_repeat - n_focus)])
-            noise = student_t_noise(rng, (len(idx), dim), config.noise_dof) * sigma[idx]
+            noise = student_t_noise(rng, (len(idx), dim), config.noise_dof) * sigma
             x = x_all[idx] + noise
             # The maskable features turn unknown as they become known: touch's together
             # (W's column of one draw per sample), the fovea's on its own column (the
@@ -440,7 +435,7 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
             if n_novel:
                 nov = rng.choice(usable, n_novel)
                 kn = k_all[nov]
-                offset = novel_offsets(rng, kn, config) * sigma[nov]
+                offset = novel_offsets(rng, kn, config) * sigma
                 x = np.concatenate([x, x_all[nov] + offset])
                 k = np.concatenate([k, kn])
                 y = np.concatenate([y, np.zeros(n_novel, np.int64)])
@@ -462,19 +457,6 @@ def _train_replay(network: AssociativeNetwork, exemplars: np.ndarray, known: np.
         block = config.check_every
     network.eval()
     return steps
-
-
-def look_scales(x: np.ndarray, k: np.ndarray, scale: Sequence[float],
-                gates: Sequence[tuple[int, float, torch.Tensor]]) -> np.ndarray:
-    """Per look, the scales its kind is measured on: ``scale``, and for a look that passes
-    a gate (its column known and at least the least value) the kind's, scale / sqrt(factor)
-    where the factor is positive (``AssociativeNetwork.gates``). (n, F)."""
-    out = np.broadcast_to(np.asarray(scale, np.float64), x.shape).copy()
-    for col, least, factor in gates:
-        f = factor.numpy().astype(np.float64)
-        rows = k[:, col] & (x[:, col] >= least)
-        out[rows] = np.where(f > 0, out[rows] / np.sqrt(np.where(f > 0, f, 1.0)), out[rows])
-    return out
 
 
 def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryConfig
