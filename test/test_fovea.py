@@ -225,11 +225,14 @@ def test_a_silhouette_outside_the_fovea_gives_no_outline():
 
 def _outline_of(polygons: list[list[tuple[float, float]]],
                 patch: tuple[float, float, float, float] | None = None,
+                margin: int = 0,
                 ) -> tuple[np.ndarray, np.ndarray] | None:
     """``top_outline`` of bright polygons (retina pixels) on a dark ground, rendered
     anti-aliased into the fovea and rasterised into the retina's mask (one silhouette).
     ``patch`` (u0, v0, u1, v1), a rectangle of ground nearly the polygons' grey, drawn
-    first: the top edge in front of it steps too little for the strength test."""
+    first: the top edge in front of it steps too little for the strength test.
+    ``margin``: the mask reaches this many retina pixels past the polygons on either
+    side, over ground (as a segmentation's boundary can)."""
     cam = CameraModel(width=128, height=128, focal_px=110.0)
     fcam = CameraModel(width=192, height=192, focal_px=358.0)
     m = fcam.focal_px / cam.focal_px
@@ -248,6 +251,8 @@ def _outline_of(polygons: list[list[tuple[float, float]]],
         poly = np.asarray(polygon, float)
         cv2.fillPoly(fovea, [fovea_px(poly)], 0.8, cv2.LINE_AA, shift=4)
         cv2.fillPoly(retina, [np.round(poly * sub).astype(np.int32)], 1, cv2.LINE_8, shift=4)
+    if margin:
+        retina = cv2.dilate(retina, np.ones((1, 2 * margin + 1), np.uint8))
     vs, us = np.nonzero(retina)
     bbox = (int(us.min()), int(vs.min()), int(us.max()) + 1, int(vs.max()) + 1)
     mask = retina[bbox[1]:bbox[3], bbox[0]:bbox[2]].astype(bool)
@@ -275,6 +280,21 @@ def test_an_outline_continues_over_columns_too_weak_to_keep_while_it_stays_conve
     # silhouette. Bridged without the convexity test, it would read as one outline.
     neighbour = [(70.0, 66.0), (80.0, 66.0), (80.0, 74.0), (70.0, 74.0)]
     assert _outline_of([_CONVEX, neighbour]) is None
+
+
+def test_a_silhouette_that_reaches_past_its_object_over_ground_keeps_its_outline():
+    # A small flat top 8 retina pixels wide whose silhouette reaches 2 pixels past it on
+    # either side: the outline covers the object, two thirds of the silhouette's width.
+    # Where no step near the top stands above the fovea's noise the silhouette is ground,
+    # and the outline must cover WHOLE of the width the fovea shows, not of the mask's.
+    small = [(60.0, 70.0), (60.0, 62.0), (68.0, 62.0), (68.0, 70.0)]
+    width = (68.0 - 60.0) * 358.0 / 110.0
+    assert (68.0 - 60.0) / (68.0 - 60.0 + 4) < WHOLE
+    outline = _outline_of([small], margin=2)
+    assert outline is not None
+    cols, _ = outline
+    assert cols[-1] + 1 - cols[0] >= 0.9 * width
+    assert cols[-1] + 1 - cols[0] <= width + 2
 
 
 def test_fovea_looks_keep_the_median_of_an_objects_last_looks_until_cleared():

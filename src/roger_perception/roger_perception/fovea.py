@@ -152,7 +152,13 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
         tops.append(lo + k + 1 + off)
         strength.append(float(seg[k]))
     s = np.asarray(strength)
-    span = cols[-1] + 1 - cols[0]
+    # The silhouette's width, as the fovea shows it: the retina's silhouette can reach a
+    # retina pixel (``m`` fovea columns) past the object on either side, over ground, where
+    # no step near its top stands above the fovea's noise.
+    seen = np.flatnonzero(s > floor)
+    if seen.size == 0:
+        return None
+    span = cols[seen[-1]] + 1 - cols[seen[0]]
     keep = (s >= 0.5 * float(np.median(s))) & (s > floor)
     cols, top = cols[keep], np.asarray(tops)[keep]
     if cols.size < MIN_COLUMNS:
