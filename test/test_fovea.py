@@ -159,48 +159,86 @@ def test_the_top_against_another_roi_is_the_share_of_columns_that_meet_it():
     assert top_against_other(mask, (4, 8, 12, 14), labels, 1, reach_px=4) == pytest.approx(0.5)
 
 
-def test_a_cylinder_whose_top_meets_a_taller_one_behind_it_has_no_outline():
+def test_the_bottom_against_another_roi_is_the_share_of_columns_that_meet_one_below():
+    labels = np.zeros((20, 20), np.int32)
+    labels[4:10, 4:12] = 1    # this ROI: columns 4-11, bottom row 9
+    labels[10:16, 8:12] = 2   # another ROI right below columns 8-11
+    mask = labels[4:10, 4:12] == 1
+    assert top_against_other(mask, (4, 4, 12, 10), labels, 1, below=True) == pytest.approx(0.5)
+    assert top_against_other(mask, (4, 4, 12, 10), labels, 1) == 0.0  # nothing above
+    labels[10:16, 8:12] = 0
+    labels[11:16, 8:12] = 2   # two rows below: within the reach
+    assert top_against_other(mask, (4, 4, 12, 10), labels, 1, below=True) == pytest.approx(0.5)
+    labels[11:16, 8:12] = 0
+    labels[12:16, 8:12] = 2   # three rows below: beyond it
+    assert top_against_other(mask, (4, 4, 12, 10), labels, 1, below=True) == 0.0
+
+
+def _spy_on_against(monkeypatch, block_below: dict[str, bool]) -> list[tuple[bool, float]]:
+    """Record ``top_against_other``'s shares in perception (below or not); with
+    ``block_below["on"]`` every bottom reads as meeting another ROI."""
+    calls: list[tuple[bool, float]] = []
+    real = perception_module.top_against_other
+
+    def spy(*args, below=False, **kwargs):
+        share = 1.0 if below and block_below["on"] else real(*args, below=below, **kwargs)
+        calls.append((below, share))
+        return share
+
+    monkeypatch.setattr(perception_module, "top_against_other", spy)
+    return calls
+
+
+def test_a_cylinder_whose_top_meets_a_taller_one_behind_it_reads_round_by_its_bottom(
+        monkeypatch):
     """In line behind a cylinder, a taller one's bottom meets its top in the image: the
-    top edge found there is a step between the two (O read 0.105 where the cylinder alone
-    reads 0.044, a box's value). O is left unknown; the cylinder alone is measured."""
+    top edge found there is a step between the two (it read 0.105 where the cylinder alone
+    reads 0.044, a box's value) and does not count. Its bottom, where it stands on the
+    ground, is its own: O reads round from it."""
+    calls = _spy_on_against(monkeypatch, {"on": False})
     near, far = (0.55, 0.0), (0.74, 0.0)
     front = ObjectSpec("n", "cylinder", near, 0.09, 70.0, 1.0)
     behind = ObjectSpec("f", "cylinder", far, 0.12, 90.0, 1.0)
     for objects in ((front, behind), (front,)):
+        calls.clear()
         rois = _look_at(objects, near)
         assert len(rois) == len(objects)
         roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
         assert math.dist(roi.position[:2], near) < 0.02
-        if len(objects) == 2:
-            assert not roi.known[O_INDEX], float(roi.features[O_INDEX])
-        else:
-            assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08
+        tops = [share for below, share in calls if not below]
+        assert len(tops) == 1 and (tops[0] > 1.0 - WHOLE) == (len(objects) == 2)
+        assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08, float(
+            roi.features[O_INDEX])
 
-def test_where_the_top_meets_another_roi_only_a_round_outline_counts(monkeypatch):
+
+def test_where_the_top_meets_another_roi_only_a_round_outline_counts_else_the_bottom(
+        monkeypatch):
     """A dark cylinder 0.19 m behind in line meets the top of a near cylinder or box over
     more than a quarter of its columns. A step found between two objects adds departure,
-    never takes it away: the cylinder's outline reads round and counts; the box's reads
-    straight-edged, which a cylinder's could also read there, and stays unknown."""
-    shares: list[float] = []
-    real = perception_module.top_against_other
-
-    def spy(*args):
-        shares.append(real(*args))
-        return shares[-1]
-
-    monkeypatch.setattr(perception_module, "top_against_other", spy)
+    never takes it away: the cylinder's top reads round and counts; the box's reads
+    straight-edged, which a cylinder's could also read there, and does not count. The
+    box's bottom outline, on the ground, then gives its O: straight-edged. Where the
+    bottom meets another ROI too (forced here), the box's O stays unknown."""
+    block = {"on": False}
+    calls = _spy_on_against(monkeypatch, block)
     near = (0.55, 0.0)
     behind = ObjectSpec("f", "cylinder", (0.74, 0.0), 0.14, 30.0, 1.0)
-    for shape in ("cylinder", "box"):
-        shares.clear()
-        rois = _look_at((ObjectSpec("n", shape, near, 0.09, 70.0, 1.0), behind), near)
-        roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
-        assert math.dist(roi.position[:2], near) < 0.02, shape
-        assert len(shares) == 1 and shares[0] > 1.0 - WHOLE, (shape, shares)
-        if shape == "cylinder":
-            assert roi.known[O_INDEX] and roi.features[O_INDEX] < 0.08
-        else:
-            assert not roi.known[O_INDEX], float(roi.features[O_INDEX])
+    read: dict[tuple[bool, str], float | None] = {}
+    for blocked in (False, True):
+        block["on"] = blocked
+        for shape in ("cylinder", "box"):
+            calls.clear()
+            rois = _look_at((ObjectSpec("n", shape, near, 0.09, 70.0, 1.0), behind), near)
+            roi = min(rois, key=lambda r: math.dist(r.position[:2], near))
+            assert math.dist(roi.position[:2], near) < 0.02, shape
+            tops = [share for below, share in calls if not below]
+            assert len(tops) == 1 and tops[0] > 1.0 - WHOLE, (shape, calls)
+            read[blocked, shape] = (float(roi.features[O_INDEX]) if roi.known[O_INDEX]
+                                    else None)
+    assert read[False, "cylinder"] is not None and read[False, "cylinder"] < 0.08
+    assert read[True, "cylinder"] == read[False, "cylinder"]  # its top's outline counted
+    assert read[True, "box"] is None, read
+    assert read[False, "box"] is not None and read[False, "box"] > 2.0 * read[False, "cylinder"]
 
 
 def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place():

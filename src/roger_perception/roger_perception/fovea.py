@@ -103,7 +103,17 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
                 mask: np.ndarray, bbox: tuple[int, int, int, int],
                 steps: tuple[np.ndarray, float] | None = None,
                 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The top edge of a ROI's silhouette, refined on the fovea (module docstring, step 1).
+    """The top edge of a ROI's silhouette, refined on the fovea (module docstring, step 1):
+    ``edge_outline`` of the top."""
+    return edge_outline(fovea, fovea_camera, camera, mask, bbox, steps)
+
+
+def edge_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
+                 mask: np.ndarray, bbox: tuple[int, int, int, int],
+                 steps: tuple[np.ndarray, float] | None = None, bottom: bool = False,
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The top edge of a ROI's silhouette, or with ``bottom`` its bottom edge (where it
+    stands on the ground), refined on the fovea (module docstring, step 1).
 
     Args:
         fovea: The foveal image, float (Hf, Wf).
@@ -112,10 +122,11 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
         mask: The ROI's silhouette inside ``bbox`` (left retina).
         bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
         steps: ``fovea_steps(fovea)``, when already computed for this fovea.
+        bottom: The bottom edge instead of the top.
 
     Returns:
-        (columns, tops): fovea columns and the top edge's row in each (fovea pixels, edges
-        at integers); None when the silhouette is not wholly inside the fovea or too few
+        (columns, rows): fovea columns and the edge's row in each (fovea pixels, edges at
+        integers); None when the silhouette is not wholly inside the fovea or too few
         columns show a clear edge.
     """
     m = fovea_camera.focal_px / camera.focal_px
@@ -141,8 +152,9 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     reach = max(2, int(round(2 * m)))
     tops, strength = [], []
     for c in cols:
-        v_top = int(np.flatnonzero(sil[:, c])[0])
-        lo, hi = max(0, v_top - reach), min(hf - 1, v_top + reach)
+        rows = np.flatnonzero(sil[:, c])
+        v_edge = int(rows[-1]) if bottom else int(rows[0])
+        lo, hi = max(0, v_edge - reach), min(hf - 1, v_edge + reach)
         seg = step[lo:hi, c]
         k = int(np.argmax(seg))
         off = 0.0
@@ -167,7 +179,8 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     # stretch of ground edge, breaks it). Where the outline is steep, as at a box's corner
     # whose edge points at the eye, its step is mostly across the columns, and those columns
     # fall under the strength test: the run continues over them (``bridged``).
-    breaks = np.flatnonzero(~bridged(cols, top, reach)) + 1
+    # A bottom edge turns the other way in image rows: mirrored, it is a top's.
+    breaks = np.flatnonzero(~bridged(cols, -top if bottom else top, reach)) + 1
     runs = np.split(np.arange(cols.size), breaks)
     run = max(runs, key=len)
     # The outline must be seen whole: against a neighbour of its own grey, or behind
@@ -210,21 +223,24 @@ def bridged(cols: np.ndarray, top: np.ndarray, reach: int) -> np.ndarray:
 
 
 def outline_departure(columns: np.ndarray, tops: np.ndarray, fovea_camera: CameraModel,
-                      pose: EyePose, position: Sequence[float]) -> float:
+                      pose: EyePose, position: Sequence[float], bottom: bool = False) -> float:
     """O before normalisation (module docstring, steps 2-3); NaN where not measurable.
 
     Args:
-        columns, tops: ``top_outline``'s result.
+        columns, tops: ``edge_outline``'s result.
         fovea_camera: The fovea's intrinsics.
         pose: The left eye's pose (the fovea's).
         position: The ROI's stereo position, robot frame.
+        bottom: The outline is the bottom edge: compared with the near (lower) half of the
+            ellipse of a circle on the ground, where the object stands.
     """
-    own, straight = outline_departures(columns, tops, fovea_camera, pose, position)
+    own, straight = outline_departures(columns, tops, fovea_camera, pose, position, bottom)
     return min(own, straight)
 
 
 def outline_departures(columns: np.ndarray, tops: np.ndarray, fovea_camera: CameraModel,
-                       pose: EyePose, position: Sequence[float]) -> tuple[float, float]:
+                       pose: EyePose, position: Sequence[float], bottom: bool = False,
+                       ) -> tuple[float, float]:
     """The outline's own departure from the half-ellipse and a straight edge's across the
     same columns, both in units of the ellipse's vertical half-axis (``outline_departure``
     is the smaller); (NaN, NaN) where not measurable. Arguments as
@@ -232,7 +248,7 @@ def outline_departures(columns: np.ndarray, tops: np.ndarray, fovea_camera: Came
     p = np.asarray(position, float)
     angles = np.linspace(0.0, 2.0 * math.pi, 181)[:-1]
     rim = np.column_stack([p[0] + _R0 * np.cos(angles), p[1] + _R0 * np.sin(angles),
-                           np.full(angles.size, p[2])])
+                           np.full(angles.size, 0.0 if bottom else p[2])])
     # project_point for every rim point at once (pinhole, pixel centres at +0.5).
     cam = (rim - np.asarray(pose.position, float)) @ np.asarray(pose.rotation, float)
     if not np.all(cam[:, 2] > 1e-9):
@@ -249,14 +265,17 @@ def outline_departures(columns: np.ndarray, tops: np.ndarray, fovea_camera: Came
     sag = (pv.max() - pv.min()) / 2.0
     x = columns + 0.5 - (columns.min() + columns.max() + 1) / 2.0
     # The ellipse's upper envelope at each column: the smallest v of the polygon's edges
-    # that span it.
+    # that span it (the lower one, the largest v, for a bottom edge).
     u1, v1 = pu, pv
     u2, v2 = np.roll(pu, -1), np.roll(pv, -1)
     lo, hi = np.minimum(u1, u2), np.maximum(u1, u2)
     span = (x[:, None] >= lo[None]) & (x[:, None] <= hi[None]) & (hi > lo)[None]
     with np.errstate(divide="ignore", invalid="ignore"):
         v_at = v1[None] + (x[:, None] - u1[None]) * (v2 - v1)[None] / (u2 - u1)[None]
-    envelope = np.where(span, v_at, np.inf).min(axis=1)
+    if bottom:
+        envelope = np.where(span, v_at, -np.inf).max(axis=1)
+    else:
+        envelope = np.where(span, v_at, np.inf).min(axis=1)
     ok = np.isfinite(envelope) & (np.abs(x) <= CENTRAL * half)
     if ok.sum() < MIN_COLUMNS // 2 or sag <= 0:
         return math.nan, math.nan
@@ -281,19 +300,26 @@ def outline_feature(fovea: np.ndarray, fovea_camera: CameraModel, camera: Camera
                     pose: EyePose, mask: np.ndarray, bbox: tuple[int, int, int, int],
                     position: Sequence[float],
                     steps: tuple[np.ndarray, float] | None = None,
-                    round_only: bool = False) -> float:
+                    round_only: bool = False, bottom_free: bool = False) -> float:
     """O of one ROI normalised to [0, 1]; NaN where the fovea does not measure it
-    (``steps``: as for ``top_outline``). ``round_only``: NaN too unless the outline
-    departs less than ``ROUND`` of a straight edge's departure (a top that meets another
-    ROI: module docstring)."""
+    (``steps``: as for ``top_outline``). ``round_only``: the top's outline counts only
+    where it departs less than ``ROUND`` of a straight edge's departure (a top that meets
+    another ROI: module docstring). ``bottom_free``: where the top's outline does not
+    count, the bottom's does (module docstring, "The bottom outline"): the silhouette's
+    bottom meets the ground, no other ROI."""
     outline = top_outline(fovea, fovea_camera, camera, mask, bbox, steps)
+    if outline is not None:
+        own, straight = outline_departures(*outline, fovea_camera, pose, position)
+        dep = min(own, straight)
+        if math.isfinite(dep) and not (round_only and not own < ROUND * straight):
+            return float(min(1.0, dep / O_MAX))
+    if not bottom_free:
+        return math.nan
+    outline = edge_outline(fovea, fovea_camera, camera, mask, bbox, steps, bottom=True)
     if outline is None:
         return math.nan
-    own, straight = outline_departures(*outline, fovea_camera, pose, position)
-    dep = min(own, straight)
-    if not math.isfinite(dep) or (round_only and not own < ROUND * straight):
-        return math.nan
-    return float(min(1.0, dep / O_MAX))
+    dep = outline_departure(*outline, fovea_camera, pose, position, bottom=True)
+    return float(min(1.0, dep / O_MAX)) if math.isfinite(dep) else math.nan
 
 
 def fixated(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraModel,
@@ -311,29 +337,36 @@ def fixated(mask: np.ndarray, bbox: tuple[int, int, int, int], camera: CameraMod
 
 
 def top_against_other(mask: np.ndarray, bbox: tuple[int, int, int, int],
-                      labels: np.ndarray, own: int, reach_px: int = 2) -> float:
+                      labels: np.ndarray, own: int, reach_px: int = 2,
+                      below: bool = False) -> float:
     """Share of a ROI's silhouette columns whose top borders another ROI: within
     ``reach_px`` retina pixels above the column's topmost pixel lies another ROI's pixel.
     There the outline's edge is a step between two objects, not the object's own edge
     against the ground (an object standing in line behind it, its bottom meeting this
-    one's top), and O would measure the two together.
+    one's top), and O would measure the two together. With ``below``, the share whose
+    bottom borders another ROI below the column's lowest pixel (an object in line in front
+    of it, its top meeting this one's bottom).
 
     Args:
         mask: The ROI's silhouette inside ``bbox`` (left retina).
         bbox: (u0, v0, u1, v1) of the mask in the image.
         labels: The frame's ROI label image (0 ground, ``own`` this ROI).
         own: This ROI's label.
-        reach_px: How far above the top to look.
+        reach_px: How far above the top (below the bottom) to look.
+        below: Below the bottom instead of above the top.
     """
     cols = np.flatnonzero(mask.any(axis=0))
     if cols.size == 0:
         return 0.0
-    tops = np.argmax(mask[:, cols], axis=0) + bbox[1]
+    if below:
+        edges = mask.shape[0] - 1 - np.argmax(mask[::-1, cols], axis=0) + bbox[1]
+    else:
+        edges = np.argmax(mask[:, cols], axis=0) + bbox[1]
     u = cols + bbox[0]
     hit = np.zeros(cols.size, bool)
     for k in range(1, reach_px + 1):
-        v = tops - k
-        inside = v >= 0
+        v = edges + k if below else edges - k
+        inside = (v >= 0) & (v < labels.shape[0])
         lab = np.where(inside, labels[np.clip(v, 0, labels.shape[0] - 1), u], 0)
         hit |= inside & (lab != 0) & (lab != own)
     return float(hit.mean())

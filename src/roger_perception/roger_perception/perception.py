@@ -284,7 +284,9 @@ class Perception:
         the same condition, on the fovea of a visual improvement, for the ROI the eye
         fixates (``fovea.fixated``); where more than 1 - ``fovea.WHOLE`` of its top's
         columns meet another ROI (``fovea.top_against_other``) only a round outline counts
-        (a step between two objects adds departure), and kept at the object's position
+        (a step between two objects adds departure); where the top's outline does not count,
+        the bottom's does, unless more than 1 - ``fovea.WHOLE`` of its columns meet another
+        ROI below (an object in front); and kept at the object's position
         (``fovea.FoveaLooks``: the median of its last looks), like the weight. The touch ones are
         known where a haptic reading with tactile contacts lies near, like W.
         """
@@ -305,9 +307,12 @@ class Perception:
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:
                     self._fovea_steps = (frame.fovea, fovea_steps(frame.fovea))
                 against = top_against_other(blob.mask, blob.bbox, labels, own) > 1.0 - WHOLE
+                free_below = top_against_other(blob.mask, blob.bbox, labels, own,
+                                               below=True) <= 1.0 - WHOLE
                 o = outline_feature(frame.fovea, frame.fovea_camera, frame.camera,
                                     frame.left_pose, blob.mask, blob.bbox, position,
-                                    self._fovea_steps[1], round_only=against)
+                                    self._fovea_steps[1], round_only=against,
+                                    bottom_free=free_below)
                 if math.isfinite(o):
                     self.fovea_looks.add(position, o)
         o_near = self.fovea_looks.near(position)
