@@ -109,6 +109,12 @@ class PerceptionConfig:
             parts, at different depths) fall, at its depth, on different objects of the
             right retina (objects one behind the other whose outlines line up in the
             left eye; ``roger_perception.binocular``).
+        behind_split: Cut off the top of an object's silhouette that the plane sweep
+            places farther behind the object's centre than half its width, at
+            ``depth_sigmas`` standard errors (an object in line behind a taller one, seen
+            above it; ``roger_perception.behind``). Off by default: it costs a merge in
+            a look at two shipped worlds and 4-6 % of perception's time, for visits on
+            worlds with such objects (docs/perception.md, step 9).
         motion_threshold: Change of a pixel's smoothed intensity, after Roger's own eye and
             neck motion is compensated, that counts as visual motion: half of
             ``fg_threshold``, since an object is at least that much brighter than the
@@ -164,6 +170,7 @@ class PerceptionConfig:
     depth_sigmas: float = 3.0
     notch_px: float = 1.5
     binocular_split: bool = True
+    behind_split: bool = False
     motion_threshold: float = 0.03
     motion_blur_px: float = 1.0
     motion_min_evidence: float = 0.5

@@ -121,6 +121,10 @@ class PlaneSweep:
         mu, mv, _ = self._map(np.array([u]), np.array([v]), 1.0 / depth)
         return float(mu[0]) + 0.5, float(mv[0]) + 0.5
 
+    def depth_of(self, point: np.ndarray) -> float:
+        """Depth (m) along the left optical axis of a robot-frame point."""
+        return float((self._r_l.T @ (np.asarray(point, float) - self._c_l))[2])
+
     def point(self, u: float, v: float, depth: float) -> np.ndarray:
         """Robot-frame point seen at left pixel (u, v) at ``depth`` along the optical axis."""
         cam = self.camera

@@ -23,7 +23,11 @@
    width from its uncut side (width = its height above the ground, because every shape
    of a world file is about as wide as it is high), never closer to the edge than the
    visible centroid. ``SeenObject.cut`` (and ``Roi.cut``) mark ROIs that touch any edge
-   of the left retina.
+   of the left retina;
+6. an object standing in line behind a taller one shows only above it, and steps 1-3 join
+   it to the nearer one: the top of an object's silhouette that the plane sweep places
+   farther behind the object's centre than its shape allows becomes an object of its own
+   (``behind.cap_behind``; ``PerceptionConfig.behind_split``).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import numpy as np
 
 from roger_common.geometry import as_point
 from roger_common.types import StereoFrame
+from roger_perception.behind import along_rows, cap_behind
 from roger_perception.binocular import (
     depths_apart,
     group_labels,
@@ -145,6 +150,7 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     width = frame.camera.width
     objects: list[tuple[int, SeenObject]] = []
     boxes = label_boxes(region)
+    textured: np.ndarray | None = None
     for g in sorted(set(owner.values())):
         blob = blob_of(region, g, frame.left, bg, boxes[g])
         if blob.area < cfg.min_roi_pixels:
@@ -153,15 +159,23 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
             depth[g], cost[g] = _standing_depth(curves[:, g], blob, sweep)
         if cost[g] > cfg.max_match_cost:
             continue
-        first = int(np.flatnonzero(blob.mask.ravel())[0])
-        raster = (blob.bbox[1] + first // blob.mask.shape[1]) * width + (
-            blob.bbox[0] + first % blob.mask.shape[1])
-        seen = _place(blob, float(depth[g]), float(cost[g]), sweep, width)
-        if not seen.cut:
-            centre = _between_extremes(blob, region, sampled, sweep, cfg, float(depth[g]))
-            if centre is not None:
-                seen.position = as_point(0.5 * (centre + np.asarray(seen.position)))
-        objects.append((raster, seen))
+        seen = _locate(blob, float(depth[g]), float(cost[g]), region, sampled, sweep, cfg)
+        if cfg.behind_split and not seen.cut:
+            if textured is None:
+                textured = along_rows(frame.left, cfg.grad_threshold)
+            cap = _cut_cap(seen, region, sampled, sweep, textured, cfg)
+            if cap is not None:
+                blob = blob_of(region, g, frame.left, bg)
+                seen = _locate(blob, float(depth[g]), float(cost[g]), region, sampled, sweep,
+                               cfg)
+                cap_blob = blob_of(region, cap, frame.left, bg)
+                cap_curve, _ = sampled.curve(cap_blob.mask, cap_blob.bbox[1], cap_blob.bbox[0])
+                cap_depth, cap_cost, _ = best_depths(cap_curve[:, None], sweep.inverse_depths)
+                if cap_cost[0] <= cfg.max_match_cost:
+                    objects.append((_raster(cap_blob, width),
+                                    _place(cap_blob, float(cap_depth[0]), float(cap_cost[0]),
+                                           sweep, width)))
+        objects.append((_raster(blob, width), seen))
     objects.sort(key=lambda x: x[0])
     out = [o for _, o in objects]
     labels = np.zeros(frag.shape, np.int32)
@@ -169,6 +183,46 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
         u0, v0, u1, v1 = o.blob.bbox
         labels[v0:v1, u0:u1][o.blob.mask] = k + 1
     return out, labels
+
+
+def _raster(blob: Blob, width: int) -> int:
+    """Raster index of a blob's first pixel in a retina ``width`` pixels wide."""
+    first = int(np.flatnonzero(blob.mask.ravel())[0])
+    return (blob.bbox[1] + first // blob.mask.shape[1]) * width + (
+        blob.bbox[0] + first % blob.mask.shape[1])
+
+
+def _locate(blob: Blob, depth: float, cost: float, region: np.ndarray,
+            sampled: SampledCosts, sweep: PlaneSweep, cfg: PerceptionConfig) -> SeenObject:
+    """An object placed (step 5 of the module docstring): ``_place``, then, unless cut by
+    an edge, halfway to the midpoint of its extremes."""
+    seen = _place(blob, depth, cost, sweep, region.shape[1])
+    if not seen.cut:
+        centre = _between_extremes(blob, region, sampled, sweep, cfg, depth)
+        if centre is not None:
+            seen.position = as_point(0.5 * (centre + np.asarray(seen.position)))
+    return seen
+
+
+def _cut_cap(seen: SeenObject, region: np.ndarray, sampled: SampledCosts, sweep: PlaneSweep,
+             textured: np.ndarray, cfg: PerceptionConfig) -> int | None:
+    """Give an object's cap behind (``behind.cap_behind``) a label of its own in ``region``
+    (in place); returns that label, or None when the object has no such cap.
+
+    The bound is the object's centre (its position, along the left optical axis) plus half
+    its image width at that depth."""
+    blob = seen.blob
+    centre = sweep.depth_of(np.asarray(seen.position, float))
+    bound = centre + 0.5 * seen.width_px * centre / sweep.camera.focal_px
+    u0, v0, u1, v1 = blob.bbox
+    cap = cap_behind(blob.mask, (v0, u0), bound, sampled, sweep.costs, sweep.inverse_depths,
+                     textured,
+                     cfg.min_roi_pixels, cfg.min_stereo_samples, cfg.depth_sigmas)
+    if cap is None:
+        return None
+    label = int(region.max()) + 1
+    region[v0:v1, u0:u1][cap] = label
+    return label
 
 
 def _sampled_labels(frag: np.ndarray, fg: np.ndarray, rows: np.ndarray, cols: np.ndarray
