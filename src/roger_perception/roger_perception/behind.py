@@ -70,28 +70,8 @@ def window_best_planes(sampled: SampledCosts, box: tuple[int, int, int, int],
         (best, counts): the arg-min hypothesis of each pixel's window mean (-1 where the
         window holds no sample) and the window's sample count, each (y1 - y0, x1 - x0).
     """
-    y0, x0, y1, x1 = box
-    h, w = sampled.shape
-    ya, xa = max(y0 - radius, 0), max(x0 - radius, 0)
-    yb, xb = min(y1 + radius, h), min(x1 + radius, w)
-    idx = sampled.index()[ya:yb, xa:xb]
-    have = idx >= 0
-    if use is not None:
-        have &= use[ya:yb, xa:xb]
-    j = sampled.costs.shape[0]
-    vals = np.zeros((j, *idx.shape), np.float32)
-    vals[:, have] = sampled.costs[:, idx[have]]
-    size = (2 * radius + 1, 2 * radius + 1)
-    # Sums over each window, all hypotheses in one call (channels last).
-    sums = cv2.boxFilter(np.ascontiguousarray(vals.transpose(1, 2, 0)), -1, size,
-                         normalize=False, borderType=cv2.BORDER_CONSTANT)
-    if sums.ndim == 2:  # one hypothesis: OpenCV drops the channel axis
-        sums = sums[:, :, None]
-    counts = cv2.boxFilter(have.astype(np.float32), -1, size, normalize=False,
-                           borderType=cv2.BORDER_CONSTANT)
-    sl = (slice(y0 - ya, y0 - ya + (y1 - y0)), slice(x0 - xa, x0 - xa + (x1 - x0)))
-    best = np.argmin(sums[sl], axis=2)  # equal counts per pixel: the sum's minimum is the mean's
-    cnt = counts[sl]
+    sums, cnt = sampled.window_sums(slice(None), box, radius, use)
+    best = np.argmin(sums, axis=2)  # equal counts per pixel: the sum's minimum is the mean's
     return np.where(cnt > 0, best, -1), cnt
 
 

@@ -236,18 +236,38 @@ class SampledCosts:
         Returns:
             (means, counts), each (y1 - y0, x1 - x0); means are 0 where counts are 0.
         """
+        sums, cnt = self.window_sums(slice(plane, plane + 1), box, radius)
+        return np.where(cnt > 0, sums[:, :, 0] / np.maximum(cnt, 1.0), 0.0), cnt
+
+    def window_sums(self, planes: slice, box: tuple[int, int, int, int], radius: int,
+                    use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Summed costs of the samples in each pixel's square window, for some hypotheses.
+
+        Args:
+            planes: The hypotheses (a slice of them).
+            box: (y0, x0, y1, x1) of the pixels wanted, exclusive ends.
+            radius: Half-width of the window, pixels.
+            use: Retina mask of the samples that count (None: all).
+
+        Returns:
+            (sums (y1 - y0, x1 - x0, K) for the K hypotheses, counts (y1 - y0, x1 - x0)).
+        """
         y0, x0, y1, x1 = box
         h, w = self.shape
         ya, xa = max(y0 - radius, 0), max(x0 - radius, 0)
         yb, xb = min(y1 + radius, h), min(x1 + radius, w)
         idx = self.index()[ya:yb, xa:xb]
         have = idx >= 0
-        val = np.zeros(idx.shape, np.float32)
-        val[have] = self.costs[plane, idx[have]]
+        if use is not None:
+            have &= use[ya:yb, xa:xb]
+        costs = self.costs[planes]
+        vals = np.zeros((*idx.shape, costs.shape[0]), np.float32)
+        vals[have] = costs[:, idx[have]].T
         size = (2 * radius + 1, 2 * radius + 1)
-        sums = cv2.boxFilter(val, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+        # All hypotheses in one call (channels last); OpenCV drops a single channel's axis.
+        sums = cv2.boxFilter(vals, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+        sums = sums.reshape(*idx.shape, costs.shape[0])
         counts = cv2.boxFilter(have.astype(np.float32), -1, size, normalize=False,
                                borderType=cv2.BORDER_CONSTANT)
         sl = (slice(y0 - ya, y0 - ya + (y1 - y0)), slice(x0 - xa, x0 - xa + (x1 - x0)))
-        cnt = counts[sl]
-        return np.where(cnt > 0, sums[sl] / np.maximum(cnt, 1.0), 0.0), cnt
+        return sums[sl], counts[sl]
