@@ -22,6 +22,7 @@ from roger_common.types import (
     WorldSpec,
     feature_names,
 )
+from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
 from roger_perception.perception import Perception
 from roger_sim.simulator import Simulator
@@ -261,3 +262,22 @@ def test_a_flat_tops_brightest_grey_is_the_same_wherever_it_stands() -> None:
     step = seen["bright"][0] - float(np.mean(copies))
     assert step > 0.02, seen
     assert max(copies) - min(copies) < step / 3, seen
+
+
+def test_a_far_small_boxs_top_reads_its_near_copys_grey() -> None:
+    """A of a small box at 1 m reads what its copy at 0.6 m reads, well inside the veto on
+    A between two straight-edged tops (half of it): the far top is a band of about three
+    pixels, whose 3 x 3 means mostly mix in the sides. With A as the 90th percentile the
+    far copy read 0.011-0.019 darker (random 10047) and was stored again."""
+    a_index = feature_names("extended").index("A")
+    veto = MemoryConfig.for_mode("extended").straight_veto[a_index]
+    boxes = (("small_near", (0.58, -0.22), 0.3, 0.08, 98.0),
+             ("small_far", (0.80, 0.60), 1.7, 0.08, 98.0),
+             ("mid_near", (0.68, 0.05), 0.2, 0.09, 123.0),
+             ("mid_far", (0.62, -0.82), 1.5, 0.09, 123.0))
+    world = WorldSpec(objects=tuple(
+        ObjectSpec(name=n, shape="box", position=p, size=s, intensity=g, weight=1.0, yaw=y)
+        for n, p, y, s, g in boxes), name="far_small_boxes")
+    seen = _brightest_grey(world, tuple(b[0] for b in boxes))
+    for near, far in (("small_near", "small_far"), ("mid_near", "mid_far")):
+        assert abs(seen[near][0] - seen[far][0]) < veto / 2, (seen, veto)

@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02638, 0.03849, 0.04761, 0.00523, 0.00557, 0.00529,
-    0.02924, 0.02468, 0.02270, 0.00462, 0.01042, 0.02700,
-    0.01492, 0.01431, 0.00125, 0.00501, 0.02474)
+    0.02617, 0.03830, 0.04745, 0.00521, 0.00554, 0.00529,
+    0.02908, 0.02455, 0.02291, 0.00460, 0.01041, 0.02699,
+    0.01506, 0.01364, 0.00125, 0.00506, 0.02477)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.631, 1.263, 1.059, 0.568, 0.501, 0.530,
-    0.427, 0.367, 0.127, 1.799, 3.261, 0.581,
-    1.546, 1.677, 0.747, 0.481, 0.436)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.37
+    1.638, 1.267, 1.061, 0.572, 0.507, 0.530,
+    0.432, 0.372, 0.118, 1.801, 3.258, 0.581,
+    1.534, 1.679, 0.748, 0.470, 0.434)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.35
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -82,9 +82,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0380, 0.0397, 0.2315,
-    1.0, 1.0, 0.0234, 0.2055, 1.0)
-EXTENDED_NOISE_DOF: float = 4.20
+    1.0, 1.0, 1.0, 0.0369, 0.0396, 0.2292,
+    1.0, 1.0, 0.0233, 0.2075, 1.0)
+EXTENDED_NOISE_DOF: float = 4.28
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -103,12 +103,12 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0862, 0.0998, 1.0, 1.0, 1.0)
+    0.0856, 0.0929, 1.0, 1.0, 1.0)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
 #: brightest surface is its lit side, which turns with its bearing (copies 0.018-0.028
-#: apart), and that spread is what widens A's veto between flat tops to 0.099 (docs/memory.md,
+#: apart), and that spread is what widens A's veto between flat tops to 0.093 (docs/memory.md,
 #: "The grey between two straight-edged tops").
 STRAIGHT_VETO_FEATURES: tuple[str, ...] = ("A",)
 #: The outline O from which a flat look's top counts as straight-edged: the two-class split
@@ -121,7 +121,7 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0188, 1.0, 1.0, 1.0)
+    1.0, 0.0181, 1.0, 1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says

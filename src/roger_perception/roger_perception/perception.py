@@ -103,7 +103,7 @@ class Perception:
         self.fovea_looks = FoveaLooks(self.config.haptic_radius_m)
         #: The last fovea's steps (``fovea.fovea_steps``), computed once for its ROIs.
         self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
-        #: The last left retina and its 3 x 3 mean (``shape.smoothed_grey``), for A.
+        #: The last left retina and its three-pixel row means (``shape.smoothed_grey``), for A.
         self._smoothed: tuple[np.ndarray, np.ndarray] | None = None
         self._previous_view: MotionView | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
