@@ -339,19 +339,21 @@ def test_the_grey_vetoes_closer_between_two_straight_edged_flat_tops() -> None:
     assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").straight_veto)
 
 
-def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> None:
-    """A prism's outline O turns with its yaw (0.2-0.85): between two looks whose touches
-    crossed a crease (TC >= flat_crease) O is left out of the distance, in the network
-    and in the memory's own distance alike; between a creased and an uncreased look, or
-    two uncreased ones, it counts."""
+@pytest.mark.parametrize("feature", ["O", "A"])
+def test_the_outline_and_brightest_grey_count_not_between_two_looks_the_hand_found_creased(
+        feature: str) -> None:
+    """A prism's outline O turns with its yaw (0.2-0.85), and so does its brightest face's
+    grey A: between two looks whose touches crossed a crease (TC >= flat_crease) they are
+    left out of the distance, in the network and in the memory's own distance alike;
+    between a creased and an uncreased look, or two uncreased ones, they count."""
     cfg = MemoryConfig.for_mode("extended")
     names = feature_names("extended")
-    o, tc, tk = names.index("O"), names.index("TC"), names.index("TK")
-    assert cfg.creased_unused == ("O",)
+    o, tc, tk = names.index(feature), names.index("TC"), names.index("TK")
+    assert cfg.creased_unused == ("O", "A")
     known = np.ones(len(names), bool)
     x = np.full(len(names), 0.4)
     x[tk], x[o] = 0.0, 0.2
-    far = 0.2 + 5.5 * np.sqrt(2.0) * cfg.feature_scale[o]  # O at the cap: the most it adds
+    far = 0.2 + 5.5 * np.sqrt(2.0) * cfg.feature_scale[o]  # at the cap: the most it adds
     results = {}
     for crease_stored, crease_query in ((1.0, 1.0), (1.0, 0.3), (0.3, 0.3)):
         memory = AssociativeMemory(cfg, seed=3)
@@ -366,10 +368,11 @@ def test_the_outline_counts_not_between_two_looks_the_hand_found_creased() -> No
             float(memory.distances(q, known)[0]), float(memory.distances(same_o, known)[0]),
             memory.decide(q, known, final_trial=True).distance)
     both, one, none = results[(1.0, 1.0)], results[(1.0, 0.3)], results[(0.3, 0.3)]
-    # Both creased: O's difference adds nothing (the memory's distance and the network's).
+    # Both creased: the feature's difference adds nothing (the memory's distance and the
+    # network's).
     assert both[0] == pytest.approx(both[1], abs=1e-6)
     assert both[2] == pytest.approx(both[0], rel=0.05, abs=0.05)
-    # One or neither creased: O counts.
+    # One or neither creased: it counts.
     assert one[0] > one[1] + 0.5 and none[0] > none[1] + 0.5
     assert one[2] > both[2] + 0.5 and none[2] > both[2] + 0.5
     # The paper mode has no crease to read.

@@ -46,13 +46,13 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02617, 0.03830, 0.04745, 0.00521, 0.00554, 0.00529,
-    0.02908, 0.02455, 0.02291, 0.00460, 0.01041, 0.02699,
-    0.01506, 0.01364, 0.00125, 0.00506, 0.02477)
+    0.02611, 0.03822, 0.04738, 0.00521, 0.00554, 0.00529,
+    0.02912, 0.02460, 0.02296, 0.00460, 0.01042, 0.02702,
+    0.01507, 0.01346, 0.00125, 0.00506, 0.02478)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.638, 1.267, 1.061, 0.572, 0.507, 0.530,
-    0.432, 0.372, 0.118, 1.801, 3.258, 0.581,
-    1.534, 1.679, 0.748, 0.470, 0.434)
+    1.639, 1.268, 1.062, 0.572, 0.506, 0.529,
+    0.430, 0.369, 0.115, 1.799, 3.255, 0.579,
+    1.532, 1.695, 0.747, 0.469, 0.433)
 EXTENDED_IDENTIFY_DISTANCE: float = 2.35
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
@@ -82,8 +82,8 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0369, 0.0396, 0.2292,
-    1.0, 1.0, 0.0233, 0.2075, 1.0)
+    1.0, 1.0, 1.0, 0.0369, 0.0396, 0.2294,
+    1.0, 1.0, 0.0233, 0.2076, 1.0)
 EXTENDED_NOISE_DOF: float = 4.28
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
@@ -127,8 +127,14 @@ EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
 #: nothing of its category between two of them, where between a box and a cylinder it is
 #: the one feature that parts them (docs/memory.md, "The outline between two creased
-#: looks").
-CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O",)
+#: looks"). And the brightest surface's grey A: a creased object's faces are flat and
+#: turn with its yaw against the one light, so its brightest face's grey does (a prism's
+#: A 0.03-0.1 apart between copies), where a box's top keeps its grey. (The paper's rim
+#: contrast I1-I3 turns too, but between two prisms it still parts categories: left out
+#: as well, 5 of 225 pairs of two categories' creased looks fell within the acceptance
+#: distance, none with A alone; docs/memory.md, "The brightest grey between two creased
+#: looks".)
+CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A")
 #: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
