@@ -20,7 +20,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from ros_helpers import spin_until
 
-from roger_common.liveness import CRASH_EXIT, SETUP_EXIT, Silence
+from roger_common.liveness import CRASH_EXIT, HANG_TIMEOUT_S, SETUP_EXIT, Silence
 from roger_common.ros_node import HeartbeatWatch
 
 
@@ -60,10 +60,25 @@ def test_silence_does_not_blame_nodes_for_the_watchers_own_stall() -> None:
     silence.tick()
     clock.t += 30.0  # the watcher itself was stopped or swapped out
     silence.tick()
-    assert silence.silent_for("a") == pytest.approx(0.0)
+    assert silence.silent_for("a") == pytest.approx(1.0)  # at most own_stall_s counts
     clock.t += 0.5
     silence.tick()
-    assert silence.silent_for("a") == pytest.approx(0.5)
+    assert silence.silent_for("a") == pytest.approx(1.5)
+
+
+def test_silence_grows_when_every_turn_of_the_watcher_is_a_little_late() -> None:
+    """A watcher on a loaded machine whose turns all come 1.5 s apart still sees a node
+    that stopped beating fall silent for longer than HANG_TIMEOUT_S (when each late turn
+    discounted its whole delay, the silence stayed 0 for ever)."""
+    clock = FakeClock()
+    silence = Silence(clock, own_stall_s=1.0)
+    silence.heard("a")
+    silence.tick()
+    for _ in range(20):  # 30 s of turns 1.5 s apart, no beat
+        clock.t += 1.5
+        silence.tick()
+    assert silence.silent_for("a") == pytest.approx(20.0)
+    assert silence.silent_for("a") > HANG_TIMEOUT_S
 
 
 def test_setup_error_exits_2_with_one_line(tmp_path) -> None:

@@ -52,7 +52,10 @@ class Silence:
 
     ``tick`` is called at every turn of the watcher's loop. A turn that comes late (the
     watcher itself was stopped, swapped out or busy) moves every last-heard time forward by
-    the delay, so that no node is blamed for silence the watcher could not hear.
+    the part of the delay beyond ``own_stall_s``, so that no node is blamed for silence the
+    watcher could not hear. Only that part: turns that keep coming a little over
+    ``own_stall_s`` late (a loaded machine) would otherwise discount all the time between
+    them, and a node that stopped beating would never be found silent.
     """
 
     def __init__(self, clock: Callable[[], float] = time.monotonic,
@@ -75,7 +78,7 @@ class Silence:
             self.own_longest_stall = max(self.own_longest_stall, late)
         if late > self._own_stall_s:
             for key in self._last:
-                self._last[key] += late
+                self._last[key] += late - self._own_stall_s
         self._tick = now
 
     def heard(self, key: Hashable, name: str = "") -> None:
