@@ -339,6 +339,38 @@ def test_the_grey_vetoes_closer_between_two_straight_edged_flat_tops() -> None:
     assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").straight_veto)
 
 
+def test_a_spheres_albedo_vetoes_between_two_looks_the_hand_found_curved() -> None:
+    """Two spheres of one size and weight a Table-1 step of grey apart (72 and 87: AS
+    0.059 apart) lie within the acceptance distance: AS varies with the view for every
+    other shape, so it never vetoes at large. Between two looks the hand found smooth and
+    curved (TC < ``flat_crease``, TK >= ``flat_curvature``: a sphere) it vetoes at
+    ``curved_veto``; between two flat tops, or where the query's curvature is unknown, it
+    does not."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    a_s, tc, tk = (names.index(n) for n in ("AS", "TC", "TK"))
+    step = 15.0 / 255.0
+    assert cfg.curved_veto[a_s] < step
+    assert all(v >= 1.0 for i, v in enumerate(cfg.curved_veto) if i != a_s)
+    assert cfg.veto[a_s] >= 1.0 and cfg.flat_veto[a_s] >= 1.0
+    known = np.ones(len(names), bool)
+    for what, curvature, vetoed in (("two spheres", 0.5, True), ("two flat tops", 0.0, False)):
+        x = np.full(len(names), 0.4)
+        x[tc], x[tk], x[a_s] = 0.1, curvature, 72.0 / 255.0
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(x, known)
+        q = x.copy()
+        q[a_s] += step
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.distance < cfg.identify_distance, what
+        assert decision.vetoed is vetoed, what
+        unknown = known.copy()
+        unknown[tk] = False
+        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+    # In the paper mode there is no AS and no touch.
+    assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").curved_veto)
+
+
 @pytest.mark.parametrize("feature", ["O", "A"])
 def test_the_outline_and_brightest_grey_count_not_between_two_looks_the_hand_found_creased(
         feature: str) -> None:

@@ -27,6 +27,7 @@ from roger_memory.calibration import (
     calibrate,
     choose_z_cap,
     creased_looks,
+    curved_looks,
     flat_looks,
     straight_looks,
     two_class_split,
@@ -38,6 +39,7 @@ from roger_memory.config import (
     CALIBRATED_IDENTIFY_DISTANCE,
     CALIBRATED_NOISE_DOF,
     CALIBRATED_VETO,
+    CURVED_VETO_FEATURES,
     FLAT_VETO_FEATURES,
     NEVER_VETO_FEATURES,
     STRAIGHT_VETO_FEATURES,
@@ -116,6 +118,9 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     assert split == pytest.approx(ext.straight_outline, abs=5e-4)
     straight = straight_looks(x, known, flat, o, split)
     assert 0.3 < straight.sum() / flat.sum() < 0.7  # boxes against cylinders
+    curved = curved_looks(x, known, names.index("TC"), names.index("TK"),
+                          defaults.flat_crease, defaults.flat_curvature)
+    assert 0.05 < curved.mean() < 0.4  # spheres
     cal, scores = choose_z_cap(x, known,
                                np.array([f"{q.world}/{q.policy}/{q.seed}" for q in rows]),
                                np.array([q.entry for q in rows]),
@@ -128,7 +133,10 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
                                creased_unused=np.array([n in ext_unused for n in names]),
                                straight=straight,
                                straight_vetoing=np.array([n in STRAIGHT_VETO_FEATURES
-                                                          for n in names]))
+                                                          for n in names]),
+                               curved=curved,
+                               curved_vetoing=np.array([n in CURVED_VETO_FEATURES
+                                                        for n in names]))
     # A third of the looks are of tops the hand found smooth and flat (boxes, cylinders).
     assert 0.2 < flat.mean() < 0.6
     assert cal.flat_veto is not None
@@ -138,6 +146,10 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     # Between straight-edged tops A vetoes closer than between flat tops at large.
     a = names.index("A")
     assert cal.straight_veto[a] < 0.5 * cal.flat_veto[a]
+    # Between two spheres AS vetoes within a Table-1 step of grey (15/255 of albedo).
+    assert cal.curved_veto is not None
+    np.testing.assert_allclose(cal.curved_veto, ext.curved_veto, rtol=0.01, atol=5e-4)
+    assert cal.curved_veto[names.index("AS")] < 15.0 / 255.0
     assert min(scores, key=lambda cap: scores[cap]) == ext.z_cap
     # The cap matters: none, or the old 3, lets the acceptance take in more other looks.
     assert scores[0.0] > scores[3.0] > scores[ext.z_cap]

@@ -159,8 +159,14 @@ def check_params_file(path: Path) -> None:
 
 
 def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
-                 observers: int, out: Path) -> dict[str, list[str]]:
+                 observers: int, out: Path,
+                 light: tuple[float, float, float] = (1.0, 0.5, 1.0)
+                 ) -> dict[str, list[str]]:
     """Each node's ``--ros-args`` after ``use_sim_time``: the run's own values as ``-p``.
+
+    Perception is told the world file's ``light`` (``PerceptionConfig.light_direction``:
+    the robot knows its light as it knows its camera), and with a params file that sets
+    the simulator's ``light_ambient`` or ``light_diffuse``, those too.
 
     With ``opt.params_file`` every node also gets ``--params-file OUT/params.yaml``: the
     user's file with the run's own values written into each node's section (rcl lets a
@@ -170,7 +176,7 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
     values: dict[str, dict[str, Any]] = {
         "sim": dict(world=world, seed=opt.seed, image_size=opt.image_size,
                     realtime=opt.realtime, gui=opt.gui),
-        "perception": dict(features=opt.features),
+        "perception": dict(features=opt.features, light_direction=list(light)),
         "memory": dict(memory_file=memory, seed=opt.seed, features=opt.features),
         "attention": dict(policy=opt.policy, seed=opt.seed, max_cycles=opt.budget(),
                           stop_when_complete=opt.stable_cycles if opt.until_complete else 0,
@@ -182,6 +188,10 @@ def _node_params(opt: RunOptions, world: Path, memory: Path, qtable: Path,
     head: list[str] = []
     if opt.params_file is not None:
         merged = yaml.safe_load(opt.params_file.read_text()) or {}
+        sim_section = (merged.get("roger_sim") or {}).get("ros__parameters") or {}
+        for name in ("light_ambient", "light_diffuse"):
+            if name in sim_section:
+                values["perception"][name] = sim_section[name]
         for node, kv in values.items():
             section = merged.setdefault(f"roger_{node}", {}).setdefault("ros__parameters", {})
             section.update(kv)
@@ -309,7 +319,8 @@ def run_graph(opt: RunOptions, log: TextIO | None = None) -> dict[str, Any]:
     watch = HeartbeatWatch(monitor)
     if opt.hook is not None:
         opt.hook.attach(monitor)
-    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers), out),
+    graph = Graph(out, env, _node_params(opt, world_path, memory, qtable, len(observers), out,
+                                         world.light_direction),
                   shm_before=shm_before, external=tuple(opt.external))
     restore = install_signal_handlers()
     t0 = time.monotonic()

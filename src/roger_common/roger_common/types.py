@@ -35,12 +35,15 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 #: position and the known camera geometry: H the height of the object's top above the
 #: ground. From the fovea of a visual improvement (unknown before one): O how far the top
 #: outline departs from the ellipse a vertical cylinder's rim would project. A the grey of
-#: the brightest surface in the retina (a flat top's, lit alike wherever it stands). From touch
-#: (unknown, like W, until a haptic improvement): TH the height of the top the hand
+#: the brightest surface in the retina (a flat top's, lit alike wherever it stands). AS the
+#: albedo the silhouette's shading gives if the object is a sphere under the known light
+#: (a sphere's reads alike from every place; the memory compares it between two looks the
+#: hand found curved, and vetoes there). From touch (unknown, like W, until a haptic
+#: improvement): TH the height of the top the hand
 #: touched, TK the curvature its touches agree on (0 on a flat top or a flank, 1 / radius
 #: on a sphere) and TC the crease between them that the curvature does not explain (a
 #: prism's ridge).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "TH", "TK", "TC")
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "AS", "TH", "TK", "TC")
 #: The features a haptic improvement measures (unknown before one): W and touch's shape.
 TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC")
 #: The features only a visual improvement's foveal look measures (unknown before one).

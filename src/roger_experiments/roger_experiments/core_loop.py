@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,16 @@ from roger_sim.simulator import Simulator
 LOOP_STAGES: tuple[str, ...] = ("sim", "perception", "memory", "policy",
                                 *(f"perception.{s}" for s in STAGES))
 
+
+
+def with_light(config: PerceptionConfig, world: WorldSpec,
+               sim_config: SimConfig) -> PerceptionConfig:
+    """``config`` told the light the simulator renders ``world`` under: the world file's
+    ``light_direction`` and the simulator's ``light_ambient`` and ``light_diffuse``
+    (``PerceptionConfig.light_direction``; the extended mode's AS divides by it)."""
+    return replace(config, light_direction=world.light_direction,
+                   light_ambient=sim_config.light_ambient,
+                   light_diffuse=sim_config.light_diffuse)
 
 @dataclass
 class CoreLoop:
@@ -65,6 +75,9 @@ class CoreLoop:
             raise ConfigError(f"perception computes {mode}-mode features but the memory "
                               f"compares {wanted}-mode ones: give both one feature mode")
         cfg = self.attention_config or AttentionConfig(policy=self.policy)
+        # The robot knows its light as it knows its camera: the world's and the simulator's.
+        self.perception_config = with_light(self.perception_config, self.world,
+                                            self.sim_config)
         self.sim = Simulator(self.world, self.sim_config, seed=self.seed)
         self.perception = Perception(self.perception_config)
         if self.memory is None:

@@ -64,6 +64,7 @@ from roger_common.types import (
     feature_names,
     mode_of_dim,
 )
+from roger_experiments.core_loop import with_light
 from roger_memory.calibration import rms_z
 from roger_memory.config import MemoryConfig
 from roger_perception.config import PerceptionConfig
@@ -176,8 +177,9 @@ def collect_looks(world: WorldSpec, seed: int = 0, sim_config: SimConfig | None 
         raise ConfigError(f"noise_looks (roger features --noise-looks) must be >= 0, got "
                           f"{noise_looks}")
     att = attention_config or AttentionConfig()
-    sim = Simulator(world, sim_config or SimConfig(), seed=seed)
-    perception_config = perception_config or PerceptionConfig()
+    sim_config = sim_config or SimConfig()
+    sim = Simulator(world, sim_config, seed=seed)
+    perception_config = with_light(perception_config or PerceptionConfig(), world, sim_config)
     perception = Perception(perception_config)
     smap = SpatialMap(att.spatial_map)
     log = LookLog(world, mode=perception_config.feature_mode)

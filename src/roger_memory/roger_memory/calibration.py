@@ -40,6 +40,7 @@ Pure numpy; no label is read. Labels (object, category) only score the result el
 from __future__ import annotations
 
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -81,6 +82,10 @@ class Calibration:
             (``straight_looks``: a box's top) and the features of ``straight_vetoing``,
             measured on those looks alone (None when none was marked; docs/memory.md,
             "The grey between two straight-edged tops").
+        curved_veto: The same for two looks the hand found smooth and curved
+            (``curved_looks``: a sphere) and the features of ``curved_vetoing``, measured
+            on those looks alone (None when none was marked; docs/memory.md, "A sphere's
+            albedo").
     """
 
     feature_scale: np.ndarray
@@ -96,6 +101,7 @@ class Calibration:
     between_accepted: float = float("nan")
     flat_veto: np.ndarray | None = None
     straight_veto: np.ndarray | None = None
+    curved_veto: np.ndarray | None = None
 
 
 def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
@@ -119,6 +125,21 @@ def flat_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
     k = np.asarray(known, bool)
     return (k[:, crease_index] & k[:, curvature_index] & (x[:, crease_index] < crease_max)
             & (x[:, curvature_index] < curvature_max))
+
+
+def curved_looks(features: np.ndarray, known: np.ndarray, crease_index: int,
+                 curvature_index: int, crease_max: float, curvature_min: float) -> np.ndarray:
+    """Looks whose object the hand found smooth and curved: crease (TC) and curvature (TK)
+    both known, TC < ``crease_max`` and TK >= ``curvature_min`` (a sphere; not a flat top,
+    not a prism's ridge).
+
+    Returns:
+        (n,) bool.
+    """
+    x = np.asarray(features, np.float64)
+    k = np.asarray(known, bool)
+    return (k[:, crease_index] & k[:, curvature_index] & (x[:, crease_index] < crease_max)
+            & (x[:, curvature_index] >= curvature_min))
 
 
 def straight_looks(features: np.ndarray, known: np.ndarray, flat: np.ndarray,
@@ -281,7 +302,8 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
               vetoing: np.ndarray | None = None, flat: np.ndarray | None = None,
               flat_vetoing: np.ndarray | None = None, creased: np.ndarray | None = None,
               creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
-              straight_vetoing: np.ndarray | None = None) -> Calibration:
+              straight_vetoing: np.ndarray | None = None, curved: np.ndarray | None = None,
+              curved_vetoing: np.ndarray | None = None) -> Calibration:
     """Measure the noise model from looks grouped by run and spatial-map entry.
 
     Args:
@@ -320,6 +342,10 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
             none).
         straight_vetoing: (F,) features that veto between two straight-edged flat looks
             (``Calibration.straight_veto``; None: none).
+        curved: (n,) looks whose object the hand found smooth and curved
+            (``curved_looks``; None: none).
+        curved_vetoing: (F,) features that veto between two curved looks
+            (``Calibration.curved_veto``; None: none).
 
     Returns:
         The Calibration.
@@ -328,9 +354,9 @@ def calibrate(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: n
         ValueError: Too few pairs of either kind to estimate a scale.
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused, straight)
+               creased, creased_unused, straight, curved)
     return _finish(fit, identify_quantile, veto_quantile, min_common, seed, z_cap, vetoing,
-                   flat_vetoing, straight_vetoing)
+                   flat_vetoing, straight_vetoing, curved_vetoing)
 
 
 #: The veto of a feature that may not veto: every feature lies in [0, 1], so no
@@ -349,7 +375,9 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
                  flat: np.ndarray | None = None, flat_vetoing: np.ndarray | None = None,
                  creased: np.ndarray | None = None, creased_unused: np.ndarray | None = None,
                  straight: np.ndarray | None = None,
-                 straight_vetoing: np.ndarray | None = None
+                 straight_vetoing: np.ndarray | None = None,
+                 curved: np.ndarray | None = None,
+                 curved_vetoing: np.ndarray | None = None
                  ) -> tuple[Calibration, dict[float, float]]:
     """The cap of one feature's |z| chosen from the robot's own looks, and its calibration.
 
@@ -362,20 +390,20 @@ def choose_z_cap(features: np.ndarray, known: np.ndarray, run: np.ndarray,
     takes in the fewest wins: at equal acceptance of the robot's own repeats, the one
     that tells most other looks apart.
 
-    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased``, ``creased_unused``, ``straight``
-    and ``straight_vetoing`` as ``calibrate``'s.
+    ``vetoing``, ``flat``, ``flat_vetoing``, ``creased``, ``creased_unused``, ``straight``,
+    ``straight_vetoing``, ``curved`` and ``curved_vetoing`` as ``calibrate``'s.
 
     Returns:
         (the calibration with the chosen cap, {cap: between_accepted} for every cap).
     """
     fit = _fit(features, known, run, entry, outlier_share, iterations, max_pairs, seed, flat,
-               creased, creased_unused, straight)
+               creased, creased_unused, straight, curved)
     scores = {cap: _accepted(fit, _acceptance(fit, identify_quantile, min_common, cap),
                              min_common, cap)
               for cap in caps}
     best = min(scores, key=lambda cap: scores[cap])
     return (_finish(fit, identify_quantile, veto_quantile, min_common, seed, best, vetoing,
-                    flat_vetoing, straight_vetoing), scores)
+                    flat_vetoing, straight_vetoing, curved_vetoing), scores)
 
 
 def _acceptance(fit: _Fit, identify_quantile: float, min_common: int, z_cap: float
@@ -409,13 +437,14 @@ class _Fit:
     share: float
     flat_fit: _Fit | None = None
     straight_fit: _Fit | None = None
+    curved_fit: _Fit | None = None
 
 
 def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.ndarray,
          outlier_share: float, iterations: int, max_pairs: int, seed: int,
          flat: np.ndarray | None = None, creased: np.ndarray | None = None,
-         creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None
-         ) -> _Fit:
+         creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
+         curved: np.ndarray | None = None) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
     scales (the EM mixture), the between-entry scale and the information weights."""
     x = np.asarray(features, np.float64)
@@ -468,12 +497,12 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
     between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
     weight = information_weight(between_scale, scale)
     # The same fit on the flat looks alone (how one flat top's features spread, and a flat
-    # category's), and on the straight-edged flat looks alone.
-    flat_fit, straight_fit = (
+    # category's), on the straight-edged flat looks alone and on the curved ones.
+    flat_fit, straight_fit, curved_fit = (
         _sub_fit(x, k, run, entry, mask, outlier_share, iterations, max_pairs, seed)
-        for mask in (flat, straight))
+        for mask in (flat, straight, curved))
     return _Fit(d0, c0, d1, c1, entry_scale, scale, between_scale, weight, share, flat_fit,
-                straight_fit)
+                straight_fit, curved_fit)
 
 
 def _sub_fit(x: np.ndarray, k: np.ndarray, run: np.ndarray, entry: np.ndarray,
@@ -492,7 +521,8 @@ def _sub_fit(x: np.ndarray, k: np.ndarray, run: np.ndarray, entry: np.ndarray,
 def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_common: int,
             seed: int, z_cap: float, vetoing: np.ndarray | None = None,
             flat_vetoing: np.ndarray | None = None,
-            straight_vetoing: np.ndarray | None = None) -> Calibration:
+            straight_vetoing: np.ndarray | None = None,
+            curved_vetoing: np.ndarray | None = None) -> Calibration:
     """The part of ``calibrate`` that depends on the cap: acceptance distance, replay
     noise, veto and the share of other entries the acceptance takes in."""
     d0, c0, d1 = fit.d0, fit.c0, fit.d1
@@ -525,9 +555,16 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
     # largest difference between two looks of one entry (unscaled: a flat top's outline is
     # the same from every place) and the cap in a flat category's scale, beyond which the
     # distance no longer hears the feature.
-    # The same between two straight-edged flat looks, on those looks alone.
+    # The same between two straight-edged flat looks, and between two curved looks, on
+    # those looks alone.
     flat_veto = _sub_veto(fit.flat_fit, flat_vetoing, n_feat, veto_quantile, z_cap)
     straight_veto = _sub_veto(fit.straight_fit, straight_vetoing, n_feat, veto_quantile, z_cap)
+    # Between two curved looks the floor is not the cap: the distance weighs AS on the
+    # scale of all looks (a box's AS moves with its yaw), so it never hears a sphere's
+    # category spread; the floor is the veto quantile of two looks of one category under
+    # that spread (sqrt 2 sigma_f), on the curved looks alone.
+    curved_veto = _sub_veto(fit.curved_fit, curved_vetoing, n_feat, veto_quantile, z_cap,
+                            cap_floor=False)
     accepted = _accepted(fit, identify_distance, min_common, z_cap)
     return Calibration(feature_scale=scale, feature_weight=weight,
                        between_scale=fit.between_scale, entry_scale=entry_scale,
@@ -535,19 +572,23 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
                        same_share=fit.share,
                        pairs_same_entry=len(d0), pairs_between=len(d1),
                        between_accepted=accepted, flat_veto=flat_veto,
-                       straight_veto=straight_veto)
+                       straight_veto=straight_veto, curved_veto=curved_veto)
 
 
 def _sub_veto(sub: _Fit | None, vetoing: np.ndarray | None, n_feat: int,
-              veto_quantile: float, z_cap: float) -> np.ndarray | None:
+              veto_quantile: float, z_cap: float, cap_floor: bool = True
+              ) -> np.ndarray | None:
     """Per feature of ``vetoing``, the larger of the ``veto_quantile`` difference between
-    two looks of one entry and the cap in the category scale, both of the sub-fit's looks;
-    NO_VETO for the rest (None without a sub-fit or features)."""
+    two looks of one entry and a floor in the category scale sigma_f, both of the sub-fit's
+    looks: the cap, z_cap sqrt 2 sigma_f (``cap_floor``), or else the ``veto_quantile``
+    of the difference of two looks of one category, a Gaussian of sqrt 2 sigma_f; NO_VETO
+    for the rest (None without a sub-fit or features)."""
     if sub is None or vetoing is None:
         return None
+    z = z_cap if cap_floor else NormalDist().inv_cdf(0.5 + veto_quantile / 2.0)
     veto = np.full(n_feat, NO_VETO)
     for g in np.flatnonzero(np.asarray(vetoing, bool)):
         own = np.abs(sub.d0[sub.c0[:, g], g])
         tail = float(np.quantile(own, veto_quantile)) if own.size else NO_VETO
-        veto[g] = min(NO_VETO, max(tail, z_cap * np.sqrt(2.0) * sub.scale[g]))
+        veto[g] = min(NO_VETO, max(tail, z * np.sqrt(2.0) * sub.scale[g]))
     return veto

@@ -49,7 +49,13 @@ from roger_common.types import (
     feature_dim,
     feature_names,
 )
-from roger_memory.calibration import creased_looks, flat_looks, rms_z, uncreased_common
+from roger_memory.calibration import (
+    creased_looks,
+    curved_looks,
+    flat_looks,
+    rms_z,
+    uncreased_common,
+)
 from roger_memory.config import ARCHITECTURE_FIELDS, DEFAULT_CONFIG, MemoryConfig
 from roger_memory.network import AssociativeNetwork, train_replay, warm_up_optimizer
 from roger_memory.persistence import MemorySnapshot, load_snapshot, save_snapshot
@@ -160,11 +166,14 @@ class AssociativeMemory:
         self._flat_veto = np.minimum(self._veto, np.asarray(config.flat_veto, np.float32))
         self._straight_veto = np.minimum(self._flat_veto,
                                          np.asarray(config.straight_veto, np.float32))
+        self._curved_veto = np.minimum(self._veto, np.asarray(config.curved_veto, np.float32))
         names = feature_names(config.features)
-        # The flat-top veto needs the touch's crease and curvature (extended mode).
+        # The flat-top and curved vetoes need the touch's crease and curvature (extended
+        # mode).
         self._flat_columns = ((names.index("TC"), names.index("TK"))
                               if "TC" in names and "TK" in names
-                              and np.any(self._straight_veto < self._veto) else None)
+                              and (np.any(self._straight_veto < self._veto)
+                                   or np.any(self._curved_veto < self._veto)) else None)
         # The straight-edged tops' veto needs the outline (extended mode).
         self._outline_column = (names.index("O") if "O" in names
                                 and np.any(self._straight_veto < self._flat_veto) else None)
@@ -178,11 +187,15 @@ class AssociativeMemory:
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
         """The per-feature veto between two looks: ``veto``; the smaller ``flat_veto``
         where the hand found both smooth and flat-topped; the smaller still
-        ``straight_veto`` where both flat tops' outlines are straight-edged too."""
+        ``straight_veto`` where both flat tops' outlines are straight-edged too; the
+        smaller ``curved_veto`` where the hand found both smooth and curved."""
         features, known = np.asarray(features), np.asarray(known, bool)
         other, other_known = np.asarray(other), np.asarray(other_known, bool)
-        if (self._flat_columns is None or not self._flat(features, known)
-                or not self._flat(other, other_known)):
+        if self._flat_columns is None:
+            return self._veto
+        if self._curved(features, known) and self._curved(other, other_known):
+            return self._curved_veto
+        if not self._flat(features, known) or not self._flat(other, other_known):
             return self._veto
         o = self._outline_column
         if (o is not None and known[o] and other_known[o]
@@ -195,6 +208,12 @@ class AssociativeMemory:
         crease, curvature = self._flat_columns
         return bool(flat_looks(features[None, :], known[None, :], crease, curvature,
                                self._config.flat_crease, self._config.flat_curvature)[0])
+
+    def _curved(self, features: np.ndarray, known: np.ndarray) -> bool:
+        assert self._flat_columns is not None
+        crease, curvature = self._flat_columns
+        return bool(curved_looks(features[None, :], known[None, :], crease, curvature,
+                                 self._config.flat_crease, self._config.flat_curvature)[0])
 
     @property
     def seed(self) -> int:

@@ -125,6 +125,12 @@ class PerceptionConfig:
             for its motion to be measured; below it the motion is 0 (no evidence).
         features: Feature mode: "paper" (the eleven features of equations 1-5) or
             "extended" (those, then the shape evidence of ``shape.py``).
+        light_direction: Direction towards the scene's one light, robot frame (any
+            length): what the robot knows of its light, as it knows its camera. The
+            extended mode's AS (``shape.sphere_albedo``) divides the shading by it. The
+            runner sets it from the world file's ``light_direction``.
+        light_ambient: The light's ambient coefficient (the simulator's ``light_ambient``).
+        light_diffuse: The light's diffuse coefficient (the simulator's ``light_diffuse``).
     """
 
     log_sigmas: tuple[float, float, float] = (1.0, 1.5, 2.2)
@@ -175,12 +181,28 @@ class PerceptionConfig:
     motion_blur_px: float = 1.0
     motion_min_evidence: float = 0.5
     features: str = DEFAULT_FEATURE_MODE.value
+    light_direction: tuple[float, float, float] = (1.0, 0.5, 1.0)
+    light_ambient: float = 0.6
+    light_diffuse: float = 0.35
 
     def __post_init__(self) -> None:
         try:
             object.__setattr__(self, "features", FeatureMode.parse(self.features).value)
         except (ValueError, TypeError) as exc:
             raise _fail("features", self.features, str(exc)) from None
+        light = tuple(self.light_direction)
+        if (len(light) != 3 or not all(_finite(c) for c in light)
+                or math.hypot(*light) <= 1e-9):
+            raise _fail("light_direction", self.light_direction,
+                        "need three finite numbers, not all 0 (towards the light)")
+        object.__setattr__(self, "light_direction", tuple(float(c) for c in light))
+        for name in ("light_ambient", "light_diffuse"):
+            value = getattr(self, name)
+            if not _finite(value) or value < 0:
+                raise _fail(name, value, "need a finite number >= 0")
+        if self.light_ambient + self.light_diffuse <= 0:
+            raise _fail("light_diffuse", self.light_diffuse,
+                        "need light_ambient + light_diffuse > 0")
         sig = tuple(self.log_sigmas)
         if len(sig) != 3 or not all(_finite(s) and s > 0 for s in sig):
             raise _fail("log_sigmas", self.log_sigmas, "need three positive sigmas (pixels)")

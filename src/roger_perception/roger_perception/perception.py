@@ -68,8 +68,14 @@ from roger_perception.fovea import (
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import find_objects
-from roger_perception.segmentation import window_boxes
-from roger_perception.shape import smoothed_grey, top_brightness, top_height, visual_features
+from roger_perception.segmentation import background_level, window_boxes
+from roger_perception.shape import (
+    smoothed_grey,
+    sphere_albedo,
+    top_brightness,
+    top_height,
+    visual_features,
+)
 from roger_perception.stereo import (
     fundamental_matrix,
     relative_disparities_batch,
@@ -80,6 +86,7 @@ from roger_perception.stereo import (
 STAGES: tuple[str, ...] = ("log", "segment", "match", "features", "activation")
 #: Index of A (the brightest surface's grey) among the extended features.
 _A: int = SHAPE_FEATURE_NAMES.index("A")
+_AS: int = SHAPE_FEATURE_NAMES.index("AS")
 
 
 class Perception:
@@ -105,6 +112,9 @@ class Perception:
         self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
         #: The last left retina and its three-pixel row means (``shape.smoothed_grey``), for A.
         self._smoothed: tuple[np.ndarray, np.ndarray] | None = None
+        #: The last left retina and its ground grey (``segmentation.background_level``),
+        #: for AS.
+        self._ground: tuple[np.ndarray, float] | None = None
         self._previous_view: MotionView | None = None
         self._last_log: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         self.last_timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
@@ -279,7 +289,7 @@ class Perception:
                 own: int) -> tuple[np.ndarray, np.ndarray]:
         """The paper's eleven features followed by the shape evidence of ``shape.py``.
 
-        H and A are unknown where I is (too little of the outline is the object's own edge, or
+        H, A and AS are unknown where I is (too little of the outline is the object's own edge, or
         the retina's edge cuts it: its top may be another object's). O is measured, under
         the same condition, on the fovea of a visual improvement, for the ROI the eye
         fixates (``fovea.fixated``); where more than 1 - ``fovea.WHOLE`` of its top's
@@ -302,6 +312,14 @@ class Perception:
             a = top_brightness(self._smoothed[1], blob.mask, blob.bbox)
             if math.isfinite(a):
                 extra[_A], extra_known[_A] = a, True
+            cfg = self.config
+            if self._ground is None or self._ground[0] is not frame.left:
+                self._ground = (frame.left, background_level(frame.left))
+            a_s = sphere_albedo(frame.left, blob.mask, blob.bbox, frame.left_pose.rotation,
+                                cfg.light_direction, cfg.light_ambient, cfg.light_diffuse,
+                                self._ground[1])
+            if math.isfinite(a_s):
+                extra[_AS], extra_known[_AS] = a_s, True
             if frame.fovea is not None and frame.fovea_camera is not None \
                     and fixated(blob.mask, blob.bbox, frame.camera):
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:

@@ -34,6 +34,18 @@ known eye pose, never the simulator's objects):
   view dependent for them: it never vetoes but between two flat tops (the memory's
   ``FLAT_VETO_FEATURES``).
 
+* ``AS``: the albedo of a sphere: the silhouette's shading divided by what the known light
+  (``PerceptionConfig.light_direction``, ``light_ambient``, ``light_diffuse``: the robot's
+  knowledge of its light, as of its camera) gives a sphere's normals there
+  (``sphere_albedo``). A sphere's brightest visible surface turns with the bearing, so its
+  A does (one sphere of grey 100 read A 0.28-0.36 over bearings -60 to +60 degrees and
+  0.5-1 m, sd 0.022; a Table-1 grey step is about 0.05), while its albedo does not: AS of
+  the same looks 0.388-0.412 (sd 0.007; grey 100 is 0.392), and 2-2.5 % of the albedo at
+  greys 60 and 180, sizes 0.06 and 0.14 m (docs/perception.md, "A sphere's albedo").
+  Of a box, a cylinder or a prism the sphere's normals are wrong, and AS moves with the
+  yaw and bearing (sd 0.015-0.03): the memory compares it only between two looks the hand
+  found smooth and curved (``MemoryConfig.curved_veto``), where it vetoes.
+
 Three more visual measurements were built, measured and dropped (docs/perception.md,
 "Extended features"): the silhouette's metric height over width (R), how far it reaches
 above the top (E) and the median shading gradient (G). Between categories that differ only
@@ -203,6 +215,64 @@ def top_brightness(smoothed: np.ndarray, mask: np.ndarray,
     if values.size == 0:
         return math.nan
     return _unit(float(np.percentile(values, 90)))
+
+
+#: Pixels whose sphere normal is known well enough for ``sphere_albedo``: within this share
+#: of the circle's radius of its centre (nearer the rim a pixel spans normals tens of
+#: degrees apart, and a row's silhouette may end a pixel early or late).
+SPHERE_CORE: float = 0.7
+
+
+def sphere_albedo(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int, int],
+                  rotation: np.ndarray, light: Sequence[float], ambient: float,
+                  diffuse: float, ground: float) -> float:
+    """``AS`` of one ROI in [0, 1] (module docstring); NaN where too little is seen.
+
+    The silhouette is the ROI's pixels brighter than half-way from the ground's grey to
+    the ROI's median (a ROI holds a rim of ground, 0-1 px, which would move the circle
+    by a pixel: one sphere's AS then spread 6 % over four places against 1 % without
+    it; a sphere's darkest pixel, its unlit side, is ``ambient`` over about
+    ``ambient + diffuse / 2`` of its median, well above half-way). It is taken for a
+    sphere's: a circle as wide as the silhouette whose top is the silhouette's top row
+    (an object in front hides a sphere's bottom, never its top).
+    Each pixel of its core (``SPHERE_CORE``) gets the sphere's normal there, in the camera
+    frame (u, v, -sqrt(1 - u^2 - v^2)) over the radius (the eye sees the object under a
+    few degrees, so the rays are taken parallel), turned into the robot frame by the eye's
+    ``rotation``; its grey over ``ambient + diffuse max(0, n . l)`` is the albedo the pixel
+    says, and AS is their median.
+
+    Args:
+        image: The left retina, intensities in [0, 1].
+        mask: The ROI's silhouette inside ``bbox``.
+        bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
+        rotation: The eye's camera axes in the robot frame (``EyePose.rotation``).
+        light: Direction towards the light, robot frame (any length).
+        ambient, diffuse: The Phong coefficients of the light.
+        ground: The ground's grey in this retina (``segmentation.background_level``).
+    """
+    u0, v0, u1, v1 = bbox
+    grey_box = np.asarray(image, float)[v0:v1, u0:u1]
+    m = mask.astype(bool)
+    if not m.any():
+        return math.nan
+    m &= grey_box > ground + 0.5 * (float(np.median(grey_box[m])) - ground)
+    vs, us = np.nonzero(m)
+    if vs.size == 0:
+        return math.nan
+    rho = 0.5 * float(us.max() - us.min() + 1)
+    cu = 0.5 * float(us.min() + us.max() + 1)
+    cv = float(vs.min()) + rho
+    du = (us + 0.5 - cu) / rho
+    dv = (vs + 0.5 - cv) / rho
+    r2 = du * du + dv * dv
+    core = r2 < SPHERE_CORE ** 2
+    if int(core.sum()) < 3:
+        return math.nan
+    n_cam = np.stack([du[core], dv[core], -np.sqrt(1.0 - r2[core])], axis=1)
+    normals = n_cam @ np.asarray(rotation, float).T
+    shade = ambient + diffuse * np.clip(normals @ _unit_vector(light), 0.0, None)
+    grey = grey_box[vs[core], us[core]]
+    return _unit(float(np.median(grey / shade)))
 
 
 def visual_features(z_over: float) -> tuple[float]:
