@@ -23,7 +23,7 @@ from roger_common.types import (
     feature_names,
 )
 from roger_memory.config import MemoryConfig
-from roger_memory.memory import AssociativeMemory
+from roger_memory.memory import AssociativeMemory, Decision
 from roger_memory.network import student_t_noise
 
 ALL_KNOWN = np.ones(FEATURE_DIM, bool)
@@ -301,6 +301,18 @@ def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -
     assert all(v >= 1.0 for v in paper.flat_veto)
 
 
+def _stored_then_asked(cfg: MemoryConfig, x: np.ndarray, q: np.ndarray, known: np.ndarray,
+                       hidden: int) -> tuple[Decision, bool]:
+    """A memory that stored ``x``: its final-trial decision on ``q``, then whether it
+    vetoes ``q`` with the feature ``hidden`` unknown."""
+    memory = AssociativeMemory(cfg, seed=3)
+    memory.store(x, known)
+    decision = memory.decide(q, known, final_trial=True)
+    unknown = known.copy()
+    unknown[hidden] = False
+    return decision, memory.decide(q, unknown, final_trial=True).vetoed
+
+
 def test_the_grey_vetoes_closer_between_two_straight_edged_flat_tops() -> None:
     """Two boxes of one size and weight, 16 greys apart (A 0.054), differ too little in A
     for the veto between flat tops (a cylinder's lit side spreads its copies' A) and the
@@ -324,17 +336,13 @@ def test_the_grey_vetoes_closer_between_two_straight_edged_flat_tops() -> None:
                                                   round_near, False)):
         x = np.full(len(names), 0.4)
         x[tc], x[tk], x[o], x[a] = 0.1, 0.0, outline, 0.22
-        memory = AssociativeMemory(cfg, seed=3)
-        memory.store(x, known)
         q = x.copy()
         q[o], q[a] = query_outline, 0.166
-        decision = memory.decide(q, known, final_trial=True)
+        # Without the query's outline, its top is not known to be straight-edged.
+        decision, vetoed_unknown = _stored_then_asked(cfg, x, q, known, o)
         assert decision.distance < cfg.identify_distance, what
         assert decision.vetoed is vetoed, what
-        # Without the query's outline, its top is not known to be straight-edged.
-        unknown = known.copy()
-        unknown[o] = False
-        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+        assert vetoed_unknown is False, what
     # In the paper mode the rule has nothing to read (no outline, no touch).
     assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").straight_veto)
 
@@ -357,16 +365,12 @@ def test_a_spheres_albedo_vetoes_between_two_looks_the_hand_found_curved() -> No
     for what, curvature, vetoed in (("two spheres", 0.5, True), ("two flat tops", 0.0, False)):
         x = np.full(len(names), 0.4)
         x[tc], x[tk], x[a_s] = 0.1, curvature, 72.0 / 255.0
-        memory = AssociativeMemory(cfg, seed=3)
-        memory.store(x, known)
         q = x.copy()
         q[a_s] += step
-        decision = memory.decide(q, known, final_trial=True)
+        decision, vetoed_unknown = _stored_then_asked(cfg, x, q, known, tk)
         assert decision.distance < cfg.identify_distance, what
         assert decision.vetoed is vetoed, what
-        unknown = known.copy()
-        unknown[tk] = False
-        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+        assert vetoed_unknown is False, what
     # In the paper mode there is no AS and no touch.
     assert all(v >= 1.0 for v in MemoryConfig.for_mode("paper").curved_veto)
 
