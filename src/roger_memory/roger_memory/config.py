@@ -46,14 +46,14 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02686, 0.03903, 0.04725, 0.00526, 0.00568, 0.00539,
-    0.03021, 0.02623, 0.02499, 0.00467, 0.01046, 0.02794,
-    0.01741, 0.01383, 0.01947, 0.00126, 0.00527, 0.02478)
+    0.02677, 0.03898, 0.04739, 0.00526, 0.00572, 0.00539,
+    0.03001, 0.02608, 0.02490, 0.00465, 0.01046, 0.02794,
+    0.01726, 0.01372, 0.01970, 0.00126, 0.00526, 0.02477)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.614, 1.250, 1.068, 0.563, 0.481, 0.511,
-    0.392, 0.302, 0.025, 1.791, 3.261, 0.545,
-    1.383, 1.672, 1.540, 0.740, 0.427, 0.435)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.36
+    1.617, 1.250, 1.065, 0.563, 0.474, 0.512,
+    0.399, 0.308, 0.029, 1.794, 3.261, 0.545,
+    1.392, 1.680, 1.504, 0.742, 0.429, 0.435)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.34
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -84,9 +84,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0374, 0.0398, 0.2390,
-    1.0, 1.0, 1.0, 0.0235, 0.2162, 1.0)
-EXTENDED_NOISE_DOF: float = 4.22
+    1.0, 1.0, 1.0, 0.0375, 0.0398, 0.2372,
+    1.0, 1.0, 1.0, 0.0235, 0.2158, 1.0)
+EXTENDED_NOISE_DOF: float = 4.32
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -105,7 +105,7 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0861, 0.0925, 1.0, 1.0, 1.0, 1.0)
+    0.0858, 0.0912, 1.0, 1.0, 1.0, 1.0)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -123,7 +123,7 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0187, 1.0, 1.0, 1.0, 1.0)
+    1.0, 0.0231, 1.0, 1.0, 1.0, 1.0)
 #: The features that veto between two looks the hand found smooth and curved
 #: (``MemoryConfig.curved_veto``: TC < ``flat_crease``, TK >= ``flat_curvature``, a
 #: sphere): AS. A sphere's albedo under the known light reads alike from every place
@@ -138,7 +138,7 @@ CURVED_VETO_FEATURES: tuple[str, ...] = ("AS",)
 EXTENDED_CURVED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 0.0444, 1.0, 1.0, 1.0)
+    1.0, 1.0, 0.0422, 1.0, 1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
