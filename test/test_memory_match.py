@@ -8,6 +8,8 @@ from the simulator are in test_memory_recorded.py.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -18,6 +20,7 @@ from roger_common.types import (
     FEATURE_NAMES,
     WEIGHT_INDEX,
     MatchOutcome,
+    MatchResult,
     MemoryOp,
     MemoryRequest,
     feature_names,
@@ -234,6 +237,71 @@ def test_the_veto_turns_down_a_single_feature_beyond_any_repeat() -> None:
     assert decision.result.outcome == MatchOutcome.NEW
     assert memory.match(q, ALL_KNOWN).outcome == MatchOutcome.UNDETERMINED
     assert memory.stats.vetoes == 2
+
+
+def _tight_i1(**overrides: object) -> tuple[MemoryConfig, np.ndarray]:
+    """The paper calibration with I1's veto two of its category scales (the others as
+    calibrated: several scales), and those scales."""
+    scale = np.asarray(CONFIG.feature_scale)
+    veto = list(CONFIG.veto)
+    veto[0] = 2.0 * float(scale[0])
+    return MemoryConfig.for_mode("paper", veto=tuple(veto), **overrides), scale
+
+
+def test_an_address_passes_the_veto_when_any_of_its_looks_does() -> None:
+    """An address holds two looks of one object. Its nearest look to the query differs in
+    I1 by more than I1's veto; the other is farther overall (in the textures) but within
+    every veto. The object was seen that way, so the veto lets the address pass; judged
+    by its nearest look alone, the look is stored as new."""
+    for any_look, outcome in ((True, MatchOutcome.IDENTIFIED), (False, MatchOutcome.NEW)):
+        cfg, scale = _tight_i1(veto_any_look=any_look, veto_rerun=False)
+        x = _distinct_patterns(1, seed=21)[0]
+        near, far = x.copy(), x.copy()
+        near[0] += 2.5 * scale[0]  # beyond I1's veto (2 scales), nothing else off
+        far[0] += 1.0 * scale[0]
+        far[3:6] += 3.0 * scale[3:6]  # T1-3: farther, within their vetoes
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.decide(near, ALL_KNOWN, focus_id=1)
+        memory.decide(far, ALL_KNOWN, focus_id=1)
+        assert memory.store(far, ALL_KNOWN, focus_id=1) == 0
+        assert len(memory.exemplars(0)) == 2
+        decision = memory.decide(x, ALL_KNOWN, final_trial=True)
+        assert decision.winner == 0
+        assert decision.result.outcome == outcome, any_look
+        assert decision.vetoed is (not any_look)
+
+
+def test_after_a_veto_the_winner_take_all_runs_again_without_the_vetoed_unit() -> None:
+    """Two addresses: A, the network's winner, differs from the query in I1 beyond its
+    veto; B, nearly as near, is within every veto. Inhibiting A, the WTA runs again and B
+    wins over the novel unit; without the rerun the look is new. Where the next unit is
+    the novel one (B far), the look stays new."""
+    cfg, scale = _tight_i1(veto_rerun=True)
+    x = _distinct_patterns(1, seed=22)[0]
+    q = x.copy()
+    q[0] += 2.5 * scale[0]
+    b = q.copy()
+    b[3:6] += 3.0 * scale[3:6]
+    for rerun in (True, False):
+        memory = AssociativeMemory(dataclasses.replace(cfg, veto_rerun=rerun), seed=3)
+        memory.store(x, ALL_KNOWN)
+        memory.store(b, ALL_KNOWN)
+        decision = memory.decide(q, ALL_KNOWN, final_trial=True)
+        if rerun:
+            assert decision.result == MatchResult(MatchOutcome.IDENTIFIED, 1,
+                                                  decision.share)
+            assert not decision.vetoed and 0.0 < decision.share <= 1.0
+        else:
+            assert decision.winner == 0 and decision.vetoed
+            assert decision.result.outcome == MatchOutcome.NEW
+        assert memory.stats.vetoes == 1
+    far = _distinct_patterns(2, seed=23)[1]
+    memory = AssociativeMemory(cfg, seed=3)
+    memory.store(x, ALL_KNOWN)
+    memory.store(far, ALL_KNOWN)
+    decision = memory.decide(q, ALL_KNOWN, final_trial=True)
+    assert decision.winner == 0 and decision.vetoed
+    assert decision.result.outcome == MatchOutcome.NEW
 
 
 def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:

@@ -32,7 +32,8 @@ LIVE = {
     "roger_sim": {"realtime"},
     "roger_perception": set(),
     "roger_memory": {"identify_share", "veto", "flat_veto", "flat_crease", "flat_curvature",
-                     "straight_outline", "straight_veto", "curved_veto"},
+                     "straight_outline", "straight_veto", "curved_veto",
+                     "veto_any_look", "veto_rerun"},
     "roger_attention": {"qlearning.epsilon", "spatial_map.interest_rate", "max_cycles",
                         "stop_when_complete", "wait_for_observers", "retry_after_s"},
 }

@@ -254,6 +254,13 @@ class MemoryConfig:
             for that look's unit to answer.
         identify_share: Smallest winner-take-all share of the winning address for a
             non-final identification.
+        veto_any_look: The winner passes the veto when one of its looks that can answer
+            the query (``min_common_features`` in common) is within every veto: the object
+            was seen that way. False: its nearest look alone decides (before 2026-11-28).
+        veto_rerun: After a veto, inhibit the vetoed winner and let the winner-take-all run
+            again, once, over the units left; the next address wins if the veto lets it
+            pass, with its share renormalised over the units left. False: a veto makes the
+            look new (final trial).
         refine_looks: Looks an address may hold at most (its store's looks plus looks of
             later identifications of it, see docs/memory.md).
         learning_rate: Adam step size of the supervised learning module.
@@ -319,6 +326,12 @@ class MemoryConfig:
         "doc": "Fewest common known features for a stored look to answer"})
     identify_share: float = field(default=0.5, metadata={
         "doc": "Smallest winner share for a non-final identification", "live": True})
+    veto_any_look: bool = field(default=True, metadata={
+        "doc": "An address passes the veto when one of its looks does (else its nearest)",
+        "live": True})
+    veto_rerun: bool = field(default=True, metadata={
+        "doc": "After a veto, inhibit the vetoed winner and let the WTA run again, once",
+        "live": True})
     refine_looks: int = field(default=12, metadata={
         "doc": "Looks an address may hold at most"})
     learning_rate: float = field(default=0.02, metadata={

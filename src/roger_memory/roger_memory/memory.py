@@ -14,10 +14,13 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
   the query knows every feature the address knows (vision alone cannot exclude a stored
   object that differs in the weight, so a look without W is never identified as an
   address that has W); otherwise UNDETERMINED, with the winning address as best guess.
-* A distance veto remains: the winner's nearest stored look must not differ from the query
-  in any feature by more than ``veto`` (a difference never seen between two looks of one
-  object); a veto turns IDENTIFIED into UNDETERMINED (non-final) or NEW (final), and is
-  counted in :attr:`AssociativeMemory.stats`. Between two looks the hand found smooth and
+* A distance veto remains: one of the winner's stored looks must not differ from the
+  query in any feature by more than ``veto`` (a difference never seen between two looks of
+  one object; ``MemoryConfig.veto_any_look``). After a veto the vetoed unit is inhibited
+  and the winner-take-all runs once more over the units left (``veto_rerun``): the next
+  address wins if the veto lets it pass. Otherwise the veto turns IDENTIFIED into
+  UNDETERMINED (non-final) or NEW (final). Each veto is counted in
+  :attr:`AssociativeMemory.stats`. Between two looks the hand found smooth and
   flat-topped (``MemoryConfig.flat_veto``: a box's or cylinder's top) the fovea's outline
   O and the brightest grey A veto too, and between two whose outlines are both
   straight-edged (``straight_veto``: a box's top) A vetoes closer; elsewhere they vary
@@ -328,14 +331,15 @@ class AssociativeMemory:
                       MatchResult(MatchOutcome.UNDETERMINED, guess, float(shares[1 + guess])))
             self._count(result.outcome)
             return Decision(result, -1, share, distance, False, False)
-        mine = np.flatnonzero(self._addresses == winner)
-        nearest = mine[np.argmin(d2[mine])]
-        distance = float(np.sqrt(d2[nearest]))
-        common = self._known[nearest] & k
-        veto = self.veto_between(x, k, self._exemplars[nearest], self._known[nearest])
-        vetoed = bool(np.any(np.abs(self._exemplars[nearest] - x)[common] > veto[common]))
+        vetoed, distance = self._vetoed(winner, x, k, d2)
         if vetoed:
             self.stats.vetoes += 1
+            if self._config.veto_rerun:
+                rerun = self._rerun(winner, shares, x, k, d2)
+                if rerun is not None:
+                    winner, share, distance = rerun
+                    vetoed = False
+        mine = np.flatnonzero(self._addresses == winner)
         held = False
         if final_trial:
             result = (MatchResult(MatchOutcome.NEW, -1, 0.0) if vetoed else
@@ -355,6 +359,47 @@ class AssociativeMemory:
         if result.outcome is MatchOutcome.IDENTIFIED and network is None:
             self._refine(winner, x, k)
         return Decision(result, winner, share, distance, vetoed, held)
+
+    def _vetoed(self, address: int, x: np.ndarray, k: np.ndarray, d2: np.ndarray
+                ) -> tuple[bool, float]:
+        """Whether the veto turns ``address`` down, and the RMS z-distance to its nearest
+        look. With ``veto_any_look`` the address passes when one of its looks that can
+        answer the query (``d2`` finite) is within the veto in every common feature; else
+        its nearest look decides."""
+        mine = np.flatnonzero(self._addresses == address)
+        nearest = mine[np.argmin(d2[mine])]
+        looks = mine[np.isfinite(d2[mine])] if self._config.veto_any_look else [nearest]
+        vetoed = True
+        for i in (looks if len(looks) else [nearest]):
+            common = self._known[i] & k
+            veto = self.veto_between(x, k, self._exemplars[i], self._known[i])
+            if not np.any(np.abs(self._exemplars[i] - x)[common] > veto[common]):
+                vetoed = False
+                break
+        return vetoed, float(np.sqrt(d2[nearest]))
+
+    def _rerun(self, vetoed_address: int, shares: np.ndarray, x: np.ndarray, k: np.ndarray,
+               d2: np.ndarray) -> tuple[int, float, float] | None:
+        """Inhibit the vetoed winner and let the WTA run again, once, over the units left.
+
+        The novel unit winning, or the veto turning the next address down too, leaves the
+        look as new as the veto said (None). An address the veto lets pass wins with its
+        share renormalised over the units left: (address, share, distance). Once, not
+        until something passes: walking down the ranking would let the veto pick the
+        answer whatever the network learned (an untrained network's answers would then
+        change 40 % of the recorded decisions, not 84 %).
+        """
+        left = shares.copy()
+        left[1 + vetoed_address] = -1.0
+        output = int(np.argmax(left))
+        if output == 0:
+            return None
+        vetoed, distance = self._vetoed(output - 1, x, k, d2)
+        if vetoed:
+            self.stats.vetoes += 1
+            return None
+        rest = float(shares.sum() - shares[1 + vetoed_address])
+        return output - 1, float(shares[output]) / rest, distance
 
     def store(self, features: np.ndarray, known: np.ndarray, focus_id: int = 0) -> int:
         """Supervised learning (step 4 of section 4.1): store a new object and retrain.
