@@ -271,6 +271,32 @@ def test_an_address_passes_the_veto_when_any_of_its_looks_does() -> None:
         assert decision.vetoed is (not any_look)
 
 
+def test_a_look_that_never_measured_the_vetoing_feature_cannot_let_its_address_pass(
+) -> None:
+    """An address holds a look that measured I1 and one that did not (its store's final
+    look). A query equal to the second but for I1, beyond I1's veto from the first: the
+    second is nearest and cannot compare I1, so judged by the nearest look alone the
+    query is identified; a look may let the address pass only if it compares every
+    feature some look of the address compares, so the first one's I1 vetoes."""
+    for any_look, outcome in ((True, MatchOutcome.NEW), (False, MatchOutcome.IDENTIFIED)):
+        cfg, scale = _tight_i1(veto_any_look=any_look, veto_rerun=False)
+        x = _distinct_patterns(1, seed=24)[0]
+        measured = x.copy()
+        measured[3:6] += 1.0 * scale[3:6]
+        no_i1 = ALL_KNOWN.copy()
+        no_i1[0] = False
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.decide(measured, ALL_KNOWN, focus_id=1)
+        assert memory.store(np.where(no_i1, x, 0.0), no_i1, focus_id=1) == 0
+        assert memory.exemplar_known(0)[:, 0].tolist() == [True, False]
+        q = x.copy()
+        q[0] += 2.5 * scale[0]  # beyond I1's veto (2 scales) from the look that has I1
+        decision = memory.decide(q, ALL_KNOWN, final_trial=True)
+        assert decision.winner == 0
+        assert decision.result.outcome == outcome, any_look
+        assert decision.vetoed is any_look
+
+
 def test_after_a_veto_the_winner_take_all_runs_again_without_the_vetoed_unit() -> None:
     """Two addresses: A, the network's winner, differs from the query in I1 beyond its
     veto; B, nearly as near, is within every veto. Inhibiting A, the WTA runs again and B

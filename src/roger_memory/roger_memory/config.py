@@ -255,8 +255,10 @@ class MemoryConfig:
         identify_share: Smallest winner-take-all share of the winning address for a
             non-final identification.
         veto_any_look: The winner passes the veto when one of its looks that can answer
-            the query (``min_common_features`` in common) is within every veto: the object
-            was seen that way. False: its nearest look alone decides (before 2026-11-28).
+            the query (``min_common_features`` in common) and compares every feature some
+            look of the address compares with it is within every veto: the object was
+            seen that way. False: its nearest look alone decides, even one that never
+            measured the feature that would veto (before 2026-11-28).
         veto_rerun: After a veto, inhibit the vetoed winner and let the winner-take-all run
             again, once, over the units left; the next address wins if the veto lets it
             pass, with its share renormalised over the units left. False: a veto makes the

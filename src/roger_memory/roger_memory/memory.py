@@ -14,9 +14,10 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
   the query knows every feature the address knows (vision alone cannot exclude a stored
   object that differs in the weight, so a look without W is never identified as an
   address that has W); otherwise UNDETERMINED, with the winning address as best guess.
-* A distance veto remains: one of the winner's stored looks must not differ from the
-  query in any feature by more than ``veto`` (a difference never seen between two looks of
-  one object; ``MemoryConfig.veto_any_look``). After a veto the vetoed unit is inhibited
+* A distance veto remains: one of the winner's stored looks, one that compares every
+  feature the address can compare with the query, must not differ from it in any feature
+  by more than ``veto`` (a difference never seen between two looks of one object;
+  ``MemoryConfig.veto_any_look``). After a veto the vetoed unit is inhibited
   and the winner-take-all runs once more over the units left (``veto_rerun``): the next
   address wins if the veto lets it pass. Otherwise the veto turns IDENTIFIED into
   UNDETERMINED (non-final) or NEW (final). Each veto is counted in
@@ -364,11 +365,18 @@ class AssociativeMemory:
                 ) -> tuple[bool, float]:
         """Whether the veto turns ``address`` down, and the RMS z-distance to its nearest
         look. With ``veto_any_look`` the address passes when one of its looks that can
-        answer the query (``d2`` finite) is within the veto in every common feature; else
+        answer the query (``d2`` finite) and compares every feature some look of the
+        address compares with the query is within the veto in every common feature; else
         its nearest look decides."""
         mine = np.flatnonzero(self._addresses == address)
         nearest = mine[np.argmin(d2[mine])]
-        looks = mine[np.isfinite(d2[mine])] if self._config.veto_any_look else [nearest]
+        looks = [nearest]
+        if self._config.veto_any_look:
+            # Only a look that compares every feature some look of the address compares
+            # may let it pass: one that never measured the feature that vetoes cannot.
+            comparable = self._known[mine].any(axis=0) & k
+            full = np.all(self._known[mine] | ~comparable, axis=1)
+            looks = mine[np.isfinite(d2[mine]) & full]
         vetoed = True
         for i in (looks if len(looks) else [nearest]):
             common = self._known[i] & k
