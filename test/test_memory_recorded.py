@@ -306,3 +306,34 @@ def test_the_two_class_split_falls_in_the_gap_between_two_groups() -> None:
     assert two_class_split(np.array([0.2, 0.2, 0.4])) == pytest.approx(0.3)
     with pytest.raises(ValueError, match="two distinct"):
         two_class_split(np.array([0.1, 0.1]))
+
+
+def test_a_measurement_shared_by_the_looks_of_one_entry_cannot_set_a_veto_under_its_noise(
+        ) -> None:
+    """Every look of an object carries its last weighing, so two looks of one map entry
+    often show the same W: their differences understate the noise of two weighings. The
+    veto is floored at the ``veto_quantile`` of two looks' difference under the category
+    scale, so copies weighed apart by their own noise are not turned down. Synthetic
+    looks (12 categories, 3 copies, 6 looks each): feature 10 is weighed anew every
+    second look, and each weighing is shared by two looks (without the floor the
+    assertions fail: the vetoes then lie at 0.8-0.9 of it)."""
+    from statistics import NormalDist
+
+    rng = np.random.default_rng(11)
+    centre = rng.random((12, 11))
+    x, entry = [], []
+    for c in range(12):
+        for e in range(3):
+            weighings = centre[c, 10] + rng.normal(0.0, 0.01, 3)
+            for k in range(6):
+                look = centre[c] + rng.normal(0.0, 0.01, 11)
+                look[10] = weighings[k // 2]
+                x.append(look)
+                entry.append(c * 3 + e)
+    x = np.clip(np.array(x), 0.0, 1.0)
+    cal = calibrate(x, np.ones_like(x, bool), np.zeros(len(x)), np.array(entry))
+    floor = NormalDist().inv_cdf(0.5 + 0.999 / 2.0) * np.sqrt(2.0) * cal.feature_scale
+    assert np.all(cal.veto >= floor - 1e-12)
+    # The floor acts: 36 entries' repeats hold too few independent differences for their
+    # 99.9th percentile to reach the Gaussian's (0.8-0.9 of it on most features here).
+    assert np.sum(np.isclose(cal.veto, floor)) >= 5

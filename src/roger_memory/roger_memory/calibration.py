@@ -28,7 +28,9 @@ the weighted root-mean-square of the per-feature z-values, z_f = difference / (s
 sigma_f), of same-entry pairs measured with their own scale; the same distance is then
 applied with the category scale. The per-feature veto is the ``veto_quantile`` of one feature's
 difference between two looks of one entry that agree on the other features (repeats the
-robot accepts), scaled from the object's scatter to the category's.
+robot accepts), scaled from the object's scatter to the category's, and at least the
+``veto_quantile`` of the difference of two looks of one category under the category
+scale (the noise model's own tail).
 
 With a cap on each feature's |z| (the extended mode's robust distance), the cap itself is
 measured too (``choose_z_cap``): the one whose acceptance distance takes in the fewest
@@ -63,7 +65,8 @@ class Calibration:
         noise_dof: Degrees of freedom of a multivariate Student-t whose RMS has the same
             ``identify_quantile`` as the robot's own repeat looks (their tail).
         veto: Per feature, the largest difference between two looks of one category: the
-            ``veto_quantile`` of accepted repeats, scaled to the category spread.
+            ``veto_quantile`` of accepted repeats, scaled to the category spread, and at
+            least that quantile of two looks' difference under the category scale.
         same_share: Share of the between-entry pairs the mixture calls same-category.
         pairs_same_entry: Number of same-entry pairs used.
         pairs_between: Number of between-entry pairs used.
@@ -540,14 +543,21 @@ def _finish(fit: _Fit, identify_quantile: float, veto_quantile: float, min_commo
     # inspection set the weight's 99.9th percentile of all same-entry pairs to 0.14).
     # Scaled from one object's scatter to the category's (feature_scale / entry_scale):
     # another copy of the category, elsewhere, differs by that much more.
+    # Floored at the ``veto_quantile`` of the difference of two looks of one category
+    # under the noise model itself (a Gaussian of sqrt 2 sigma_f), as the curved veto is:
+    # looks of one entry often share one measurement (every look of an object carries
+    # its last weighing), so their differences understate the noise of two independent
+    # ones, and a veto under that floor turns down more than 1 - ``veto_quantile`` of the
+    # copies the distance takes (W: 0.040, 2.8 sigma of two weighings' difference).
+    floor = NormalDist().inv_cdf(0.5 + veto_quantile / 2.0) * np.sqrt(2.0) * scale
     veto = np.empty(n_feat)
     for f in range(n_feat):
         others = c0.copy()
         others[:, f] = False
         repeat = ((others.sum(axis=1) >= min_common) & c0[:, f]
                   & (rms_z(d0, others, entry_scale, weight, z_cap) <= identify_distance))
-        veto[f] = (np.quantile(np.abs(d0[repeat, f]), veto_quantile)
-                   * scale[f] / entry_scale[f])
+        veto[f] = max(float(np.quantile(np.abs(d0[repeat, f]), veto_quantile)
+                            * scale[f] / entry_scale[f]), float(floor[f]))
     if vetoing is not None:
         veto[~np.asarray(vetoing, bool)] = NO_VETO
     # Between two looks the hand found smooth and flat, the features of ``flat_vetoing``

@@ -38,7 +38,7 @@ CALIBRATED_FEATURE_WEIGHT: tuple[float, ...] = (
 CALIBRATED_IDENTIFY_DISTANCE: float = 2.01
 CALIBRATED_VETO: tuple[float, ...] = (
     0.1276, 0.1816, 0.2791, 0.0392, 0.0305, 0.0376,
-    0.2578, 0.2195, 0.2638, 0.0372, 0.0380)
+    0.2578, 0.2195, 0.2638, 0.0372, 0.0492)
 CALIBRATED_NOISE_DOF: float = 6.32
 
 #: The extended mode's calibration (FEATURE_NAMES then SHAPE_FEATURE_NAMES), measured the
@@ -84,7 +84,7 @@ NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATUR
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0375, 0.0398, 0.2372,
+    1.0, 1.0, 1.0, 0.0375, 0.0487, 0.2372,
     1.0, 1.0, 1.0, 0.0235, 0.2158, 1.0)
 EXTENDED_NOISE_DOF: float = 4.32
 #: The features that veto between two looks the hand found smooth and flat
