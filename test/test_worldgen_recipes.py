@@ -10,6 +10,7 @@ from collections import defaultdict
 import pytest
 from conftest import WORLDS
 
+from roger_common.errors import WorldFileError
 from roger_common.types import ObjectSpec, WorldSpec
 from roger_sim.world import SHAPES, footprint_radius, load_world, parse_world, world_to_dict
 from roger_sim.worldgen import random_world
@@ -42,6 +43,30 @@ def test_default_worlds_are_unchanged_bit_for_bit() -> None:
     more = random_world(3, 2, 7, textures=("plain", "stripes", "checker"), out_of_reach=2)
     assert _fingerprint(more) == "2cd184ec68d5926c"
     assert _fingerprint(random_world(8, 3, 3, size_range=(0.08, 0.14))) == "ff4784764b029cf0"
+
+
+def test_a_placement_that_leaves_no_room_starts_over_and_others_do_not_move() -> None:
+    # Seed 10075 of the inspection recipe: one by one, the first objects leave no room for
+    # the last at the first go (it used to raise, and a sweep over seeds stopped there).
+    with pytest.raises(WorldFileError, match="could not place 24 objects"):
+        random_world(8, 3, 10075, size_range=(0.08, 0.14), restarts=0)
+    world = random_world(8, 3, 10075, size_range=(0.08, 0.14))
+    assert len(world.objects) == 24
+    for a in world.objects:
+        for b in world.objects:
+            if a.name < b.name:
+                assert math.dist(a.position, b.position) >= (
+                    footprint_radius(a.shape, a.size) + footprint_radius(b.shape, b.size)
+                    + 0.04 - 1e-9), (a.name, b.name)
+    # A world that places at the first go is the one it always was.
+    for seed in SEEDS:
+        assert random_world(8, 3, seed, size_range=(0.08, 0.14), restarts=0) == random_world(
+            8, 3, seed, size_range=(0.08, 0.14))
+
+
+def test_a_world_that_cannot_fit_still_fails_naming_the_world() -> None:
+    with pytest.raises(WorldFileError, match=r"random_15x10_1.*could not place 150 objects"):
+        random_world(15, 10, 1, max_tries=300, restarts=2)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
