@@ -97,10 +97,12 @@ def random_world(n_categories: int, copies: int, seed: int, size_range: tuple[fl
         used.add(key)
         categories.append(cat)
     source = f"<random world {name}>"
-    near = [(c, f"c{c:02d}_{k}", False, _copy_yaw(k, copies) if yaw_copies else None)
-            for c in range(n_categories) for k in range(copies)]
-    far = [(k % n_categories, f"c{k % n_categories:02d}_far{k // n_categories}", True, None)
-           for k in range(out_of_reach)]
+    near: list[tuple[int, str, bool, float | None]] = [
+        (c, f"c{c:02d}_{k}", False, _copy_yaw(k, copies) if yaw_copies else None)
+        for c in range(n_categories) for k in range(copies)]
+    far: list[tuple[int, str, bool, float | None]] = [
+        (k % n_categories, f"c{k % n_categories:02d}_far{k // n_categories}", True, None)
+        for k in range(out_of_reach)]
     for _ in range(max(restarts, 0) + 1):
         placed = _place(near + far, categories, rng, name, source, min_gap, max_tries)
         if placed is not None:
