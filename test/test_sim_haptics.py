@@ -13,7 +13,8 @@ from roger_common.conversions import haptic_msg, msg_to_haptic
 from roger_common.errors import ConfigError, MessageError
 from roger_common.types import Action, ControllerState, Goal, HapticReading, TactileContact
 from roger_sim.config import SimConfig
-from roger_sim.haptics import GRAVITY, probe_offsets, weight_from_efforts
+from roger_sim.haptics import GRAVITY, edge_of_reach, probe_offsets, weight_from_efforts
+from roger_sim.robot import REACH, shoulder_xy
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world, parse_world
 
@@ -228,6 +229,44 @@ def test_a_probe_held_up_by_another_link_is_given_up_and_the_object_still_weighe
     # The first touch and the probes that touched: one was given up.
     assert 2 <= len(reading.contacts) <= cfg.probe_directions
     assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
+
+
+@pytest.mark.parametrize("slack", [0.0, 0.03])
+def test_a_target_just_beyond_reach_is_touched_from_the_edge_of_reach(slack: float) -> None:
+    # Twins 10080's prism c00_1 stood 4 mm inside the reach; the eyes put it 1.2 cm beyond
+    # it, so every haptic improvement failed at once and the memory decided on sight alone
+    # on every visit (a prism taken for a sphere of its size, grey and weight).
+    sx, sy = shoulder_xy("left_arm")
+    centre = (sx + REACH - 0.004, sy)
+    world = parse_world({"name": "edge", "objects": [
+        {"name": "prism", "shape": "prism", "position": list(centre), "size": 0.09,
+         "intensity": 81, "weight": 0.9, "yaw": 0.72}]}, "test")
+    with Simulator(world, SimConfig(weight_noise_kg=0.0, reach_slack_m=slack)) as sim:
+        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT,
+                                  (centre[0] + 0.016, centre[1], 0.014), arm=0))
+        reading = sim.last_haptic
+        if slack == 0.0:
+            assert report.states["left_arm"] == ControllerState.FAILED
+            assert report.physics_steps <= 2
+            return
+        assert report.states["left_arm"] == ControllerState.CONVERGED
+        assert reading is not None and reading.contact
+        assert reading.weight == pytest.approx(0.9, abs=0.05)
+        # Beyond the slack it still fails at once.
+        far = sim.execute(Goal(2, Action.HAPTIC_IMPROVEMENT,
+                               (sx + REACH + slack + 0.005, sy, 0.014), arm=0))
+        assert far.states["left_arm"] == ControllerState.FAILED and far.physics_steps <= 2
+
+
+def test_the_edge_of_reach_lies_on_the_line_from_the_shoulder() -> None:
+    sx, sy = shoulder_xy("right_arm")
+    beyond = (sx + (REACH + 0.02) * 0.6, sy - (REACH + 0.02) * 0.8)
+    edge = edge_of_reach("right_arm", beyond, 0.03)
+    assert edge is not None
+    assert math.hypot(edge[0] - sx, edge[1] - sy) == pytest.approx(REACH - 0.001)
+    assert (edge[0] - sx) / (edge[1] - sy) == pytest.approx(0.6 / -0.8)
+    assert edge_of_reach("right_arm", beyond, 0.01) is None     # beyond the slack
+    assert edge_of_reach("right_arm", (sx + 0.5, sy), 0.03) is None   # in reach already
 
 
 def test_tactile_contacts_cross_the_wire() -> None:

@@ -65,6 +65,12 @@ class SimConfig:
             (it goes across once it is clear of the top, while still rising), metres.
         probe_depth_m: How far below the first touch a probe comes down before it counts
             as fallen off the object, metres.
+        reach_slack_m: A haptic improvement whose target lies beyond the arm's reach by at
+            most this much reaches as far as it can towards it instead (the target pulled
+            back towards the shoulder to the edge of reach): an object at the edge of reach
+            whose position the eyes put a centimetre or two too far still reaches into it
+            (the smallest objects 4 cm from their centre), metres; 0: a target beyond
+            reach fails at once.
         tactile_noise_m: Std of the Gaussian noise of a tactile contact point, metres.
         tactile_normal_noise_rad: Std of the Gaussian noise added to each component of a
             tactile contact's unit normal before it is normalised again (about that many
@@ -105,6 +111,7 @@ class SimConfig:
     probe_radius_m: float = 0.04
     probe_rise_m: float = 0.03
     probe_depth_m: float = 0.08
+    reach_slack_m: float = 0.03
     tactile_noise_m: float = 0.001
     tactile_normal_noise_rad: float = 0.03
 
@@ -165,6 +172,8 @@ class SimConfig:
                "in (0, 0.2] m")
         _check("probe_depth_m", self.probe_depth_m, 0.0 < self.probe_depth_m <= 0.5,
                "in (0, 0.5] m")
+        _check("reach_slack_m", self.reach_slack_m, 0.0 <= self.reach_slack_m <= 0.1,
+               "in [0, 0.1] m")
         _check("tactile_noise_m", self.tactile_noise_m, 0.0 <= self.tactile_noise_m <= 0.05,
                "in [0, 0.05] m")
         _check("tactile_normal_noise_rad", self.tactile_normal_noise_rad,

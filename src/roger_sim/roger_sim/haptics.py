@@ -4,7 +4,9 @@ weighs it.
 The routine is a sequence of arm-servo references, each started when the previous one
 converged (the probe moves: when it passed, see below):
 
-    reach     hand at HOVER height over the target (planar inverse kinematics)
+    reach     hand at HOVER height over the target (planar inverse kinematics; a target
+              beyond reach by at most ``reach_slack_m`` is pulled back to the edge of
+              reach, ``edge_of_reach``; one farther fails at once)
     approach  hand quickly down to just above the expected top (2 * target z + 5 cm)
     touch     hand down at ``touch_speed`` until it touches an object (contact points)
     probe     (``probe_directions`` > 0) after the first touch, for each direction:
@@ -53,7 +55,15 @@ import pybullet as pb
 from roger_common.types import ControllerState, HapticReading, TactileContact
 from roger_sim.config import SimConfig
 from roger_sim.controllers import JointServo
-from roger_sim.robot import ARM_REST, HOVER, JOINT_LIMITS, RobotModel, arm_ik
+from roger_sim.robot import (
+    ARM_REST,
+    HOVER,
+    JOINT_LIMITS,
+    REACH,
+    RobotModel,
+    arm_ik,
+    shoulder_xy,
+)
 
 GRAVITY: float = 9.81
 #: Smallest normal force that counts as a touch, newtons.
@@ -89,6 +99,25 @@ def probe_offsets(config: SimConfig) -> list[tuple[float, float]]:
     n, r = config.probe_directions, config.probe_radius_m
     return [(r * math.cos(2.0 * math.pi * k / n), r * math.sin(2.0 * math.pi * k / n))
             for k in range(n)]
+
+
+def edge_of_reach(arm: str, xy: tuple[float, float], slack: float
+                  ) -> tuple[float, float] | None:
+    """The point at the edge of ``arm``'s reach on the line from its shoulder to ``xy``,
+    when ``xy`` lies beyond the reach by at most ``slack`` metres; else None.
+
+    An object at the edge of reach whose position the eyes put a centimetre or two too far
+    (radial error 1-2 cm, docs/simulator.md) still reaches into it: the hand touches its
+    near side there.
+    """
+    sx, sy = shoulder_xy(arm)
+    dx, dy = xy[0] - sx, xy[1] - sy
+    r = math.hypot(dx, dy)
+    if slack <= 0.0 or not REACH < r <= REACH + slack:
+        return None
+    # A millimetre inside the edge, so that the inverse kinematics holds.
+    k = (REACH - 0.001) / r
+    return sx + k * dx, sy + k * dy
 
 
 class HapticRoutine:
@@ -143,6 +172,11 @@ class HapticRoutine:
         self._ceiling = JOINT_LIMITS[lift][1]
         self._dof = robot.dof_index[lift]
         ik = arm_ik(arm, (self.target[0], self.target[1]))
+        if ik is None:
+            edge = edge_of_reach(arm, (self.target[0], self.target[1]), config.reach_slack_m)
+            if edge is not None:
+                self.target = (edge[0], edge[1], self.target[2])
+                ik = arm_ik(arm, edge)
         if ik is None:
             self.servo.fail()
             self._finish()

@@ -310,7 +310,8 @@ class Simulator:
             The five statuses, the controllers this goal drove, the simulated time at the
             end and the physics steps it took. Controllers still transient at
             ``goal_timeout_s`` are FAILED. A haptic improvement on a target beyond the
-            arm's reach fails at once (the arm does not move).
+            arm's reach by more than ``reach_slack_m`` fails at once (the arm does not
+            move); one within it touches from the edge of reach.
 
         Raises:
             ValueError: For MAP_UPDATE (no controller moves) or an unknown action.
