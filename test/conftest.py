@@ -71,6 +71,17 @@ def child_pids() -> set[int]:
     return pids
 
 
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (not gone, not a zombie). A process that exits
+    between two reads of /proc is gone, not an error (ProcessLookupError, seen on a fresh
+    clone's run of the two-node Ray test's clean-up)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
 @pytest.fixture
 def no_leaks(request):
     """Fail the test if it leaves a child process or a /dev/shm file of its graph behind.

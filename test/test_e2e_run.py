@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO, WORLDS, child_pids
+from conftest import REPO, WORLDS, alive, child_pids
 
 from roger_bringup.orchestrator import StopRequested, install_signal_handlers
 from roger_experiments.progress import counters_info
@@ -110,9 +110,8 @@ def test_sigint_mid_run_stops_every_node(no_leaks, tmp_path, ros_domain):
     assert proc.returncode == 130, output
     assert "stopped by SIGINT" in output
     time.sleep(0)  # children were reaped by the orchestrator before it exited
-    alive = [p for p in nodes if Path(f"/proc/{p}").exists()
-             and "Z" not in (Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0])]
-    assert not alive, f"node processes still alive after SIGINT: {alive}"
+    left = [p for p in nodes if alive(p)]
+    assert not left, f"node processes still alive after SIGINT: {left}"
     assert (out / "metrics.json").exists(), "metrics.json not written on interrupt"
     assert os.getpid() not in child_pids()
 

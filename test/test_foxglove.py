@@ -26,10 +26,9 @@ import sys
 import threading
 import time
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import pytest
-from conftest import REPO, WORLDS
+from conftest import REPO, WORLDS, alive
 from js_packages import ensure_js_packages
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from test_e2e_run import descendants
@@ -116,9 +115,8 @@ def test_a_foxglove_client_decodes_the_live_run(no_leaks, tmp_path, ros_domain, 
     text = "".join(output)
     assert proc.returncode == 130 and "stopped by SIGINT" in text, text
     assert "Traceback" not in text, text
-    alive = [p for p in nodes if Path(f"/proc/{p}").exists()
-             and (Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]) != "Z"]
-    assert not alive, f"processes still alive after SIGINT: {alive}"
+    left = [p for p in nodes if alive(p)]
+    assert not left, f"processes still alive after SIGINT: {left}"
     port = int(url.rsplit(":", 1)[1])
     with pytest.raises(ConnectionRefusedError):  # the server went with the run
         socket.create_connection(("127.0.0.1", port), timeout=5).close()

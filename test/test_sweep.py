@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import WORLDS
+from conftest import WORLDS, alive
 
 from roger_attention.config import QLearningConfig
 from roger_attention.fsm import STATES
@@ -688,8 +688,7 @@ def _stop(pids: set[int]) -> None:
             except ProcessLookupError:
                 pass
         for _ in range(50):
-            pids = {p for p in pids if Path(f"/proc/{p}").exists()
-                    and "Z" not in Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1][:3]}
+            pids = {p for p in pids if alive(p)}
             if not pids:
                 return
             time.sleep(0.1)
