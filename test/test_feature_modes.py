@@ -229,3 +229,49 @@ def test_touches_of_several_readings_of_one_object_are_pooled() -> None:
     memory.add(HapticReading(arm=0, contact=True, weight=0.7, position=(0.9, 0.0, 0.1)))
     assert memory.weight_near((0.9, 0.0, 0.1)) == pytest.approx(0.7)
     assert memory.touch_near((0.9, 0.0, 0.1))[2] == pytest.approx(1.0)
+
+
+def _image(depth_of) -> tuple[tuple[float, ...], float]:
+    """A 21 x 21 tactile image (2 mm pitch) of the surface depth ``depth_of(x, y)`` below
+    the pad (metres, pad centred on 0), NaN beyond the skin's 3 mm."""
+    grid = np.linspace(-0.02, 0.02, 21)
+    depth = np.array([[depth_of(x, y) for x in grid] for y in grid]).ravel()
+    depth[~(depth <= 0.003)] = np.nan
+    return tuple(float(v) for v in depth), float(grid[1] - grid[0])
+
+
+def test_a_tactile_image_shows_a_ridge_only_where_the_surface_falls_away_on_both_sides(
+        ) -> None:
+    from roger_common.types import TactileContact
+    from roger_perception.shape import tactile_ridge, tactile_shape
+    slope = math.tan(math.radians(60.0))  # a prism's flanks
+
+    def touch(depth_of) -> TactileContact:
+        image, pitch = _image(depth_of)
+        return TactileContact((0.6, 0.0, 0.1), (0.0, 0.0, 1.0), image=image, pitch=pitch)
+
+    ridges = [touch(lambda x, y, c=c: slope * abs(x - c)) for c in (0.0, 0.008, -0.012)]
+    turned = math.radians(35.0)
+    ridges.append(touch(lambda x, y: slope * abs(math.cos(turned) * x + math.sin(turned) * y)))
+    for ridge in ridges:
+        assert tactile_ridge(ridge)
+    not_ridges = {
+        "a flat top under the whole pad": touch(lambda x, y: 0.0),
+        "a flat top's edge under the pad's border": touch(
+            lambda x, y: 0.0 if x > 0.016 else 0.05),
+        "half the pad over a flat top": touch(lambda x, y: 0.0 if x > 0.0 else 0.05),
+        "a flank under the pad's border": touch(lambda x, y: slope * (0.02 - x)),
+        "a sphere's top": touch(lambda x, y: (x * x + y * y) / (2 * 0.04)),
+        "a ridge's end, too short": touch(
+            lambda x, y: slope * abs(x) if y > 0.012 else 0.05),
+        "no image": TactileContact((0.6, 0.0, 0.1), (0.0, 0.0, 1.0)),
+    }
+    for what, contact in not_ridges.items():
+        assert not tactile_ridge(contact), what
+    # A single touch on a ridge crosses a full crease; the same touch without its image
+    # finds none (the flat pad reports a vertical normal on a ridge).
+    assert tactile_shape([ridges[0]])[2] == pytest.approx(1.0)
+    blind = TactileContact(ridges[0].point, ridges[0].normal)
+    assert tactile_shape([blind])[2] == pytest.approx(0.0, abs=1e-6)
+    assert tactile_shape([not_ridges["a flat top under the whole pad"]])[2] == \
+        pytest.approx(0.0, abs=1e-6)

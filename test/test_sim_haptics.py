@@ -14,7 +14,7 @@ from roger_common.errors import ConfigError, MessageError
 from roger_common.types import Action, ControllerState, Goal, HapticReading, TactileContact
 from roger_sim.config import SimConfig
 from roger_sim.haptics import GRAVITY, edge_of_reach, probe_offsets, weight_from_efforts
-from roger_sim.robot import REACH, shoulder_xy
+from roger_sim.robot import PAD_HALF, REACH, shoulder_xy
 from roger_sim.simulator import Simulator
 from roger_sim.world import load_world, parse_world
 
@@ -192,6 +192,34 @@ def test_prism_ridge_tilts_or_drops(shape_readings: dict) -> None:
         assert tilt_deg(c.normal) == pytest.approx(60.0, abs=3.0), c
 
 
+def test_the_tactile_array_feels_a_ridge_as_a_line_and_a_top_as_an_area(
+        shape_readings: dict, table1_readings: dict) -> None:
+    from roger_perception.shape import tactile_ridge
+    cfg = SimConfig()
+    n = cfg.tactile_taxels
+    firsts = {name: r[1].contacts[0] for name, r in shape_readings.items()}
+    firsts["box"] = table1_readings["obj01"][1].contacts[0]
+    for name, first in firsts.items():
+        assert len(first.image) == n * n and first.taxels == n, name
+        assert first.pitch == pytest.approx(2 * PAD_HALF / (n - 1)), name
+        depth = np.asarray(first.image)
+        pressed = depth[np.isfinite(depth)]
+        # The touch pressed the skin somewhere; nothing beyond its range is reported.
+        assert pressed.size >= 3 and pressed.min() < 0.0005, name
+        assert pressed.max() <= cfg.tactile_range_m, name
+    # A flat top presses the whole pad; the prism's ridge, a line across it.
+    assert np.isfinite(firsts["box"].image).mean() > 0.9
+    assert 0.05 < np.isfinite(firsts["prism"].image).mean() < 0.25
+    assert tactile_ridge(firsts["prism"])
+    for name in ("box", "sphere"):
+        assert not tactile_ridge(firsts[name]), name
+    # Without an array a touch reports its point and normal only.
+    bare = run_haptics(SHAPES, SimConfig(tactile_taxels=0), names=("prism",))["prism"][1]
+    assert bare.contacts and all(c.image == () and c.pitch == 0.0 for c in bare.contacts)
+    with pytest.raises(ConfigError, match="tactile_taxels"):
+        SimConfig(tactile_taxels=2)
+
+
 def test_probing_costs_at_most_half_again(table1_readings: dict) -> None:
     # Simulated time (deterministic), not wall-clock time: the probes' budget.
     for name, (steps, _, _) in BEFORE_PROBES.items():
@@ -276,6 +304,21 @@ def test_tactile_contacts_cross_the_wire() -> None:
                             contacts=contacts)
     msg = haptic_msg(reading, goal_id=7, stamp=1.0)
     assert msg_to_haptic(msg) == reading
+    # Tactile images cross as they are (NaN where nothing pressed), and a length that
+    # does not fit the contacts is refused.
+    image = tuple(float(v) for v in np.where(np.arange(9) % 2, np.nan, -0.0005))
+    imaged = HapticReading(arm=0, contact=True, position=(0.5, 0.1, 0.3), weight=1.0,
+                           contacts=tuple(TactileContact(c.point, c.normal, c.probe,
+                                                         image=image, pitch=0.02)
+                                          for c in contacts))
+    back = msg_to_haptic(haptic_msg(imaged, goal_id=7, stamp=1.0))
+    for c, d in zip(back.contacts, imaged.contacts, strict=True):
+        assert c.pitch == d.pitch and c.taxels == 3
+        np.testing.assert_array_equal(c.image, d.image)
+    bad = haptic_msg(imaged, goal_id=7, stamp=1.0)
+    bad.tactile_images = list(bad.tactile_images)[:-1]
+    with pytest.raises(MessageError, match="tactile image"):
+        msg_to_haptic(bad)
     bad = haptic_msg(reading, goal_id=7, stamp=1.0)
     bad.probe_offsets = [0.0, 0.0, 0.04]
     with pytest.raises(MessageError, match="probe offsets"):

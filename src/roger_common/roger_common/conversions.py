@@ -249,7 +249,17 @@ def haptic_msg(reading: HapticReading, goal_id: int, stamp: float) -> HapticRead
                             contact_points=[point(c.point) for c in contacts],
                             contact_normals=[Vector3(x=float(c.normal[0]), y=float(c.normal[1]),
                                                      z=float(c.normal[2])) for c in contacts],
-                            probe_offsets=[float(v) for c in contacts for v in c.probe])
+                            probe_offsets=[float(v) for c in contacts for v in c.probe],
+                            **_tactile_images(contacts))
+
+
+def _tactile_images(contacts: tuple[TactileContact, ...]) -> dict[str, object]:
+    """The contacts' tactile images as the message's three fields (none when any contact
+    has no image: a reading's touches come from one array)."""
+    if not contacts or any(not c.image for c in contacts):
+        return {"tactile_taxels": 0, "tactile_pitch": 0.0, "tactile_images": []}
+    return {"tactile_taxels": contacts[0].taxels, "tactile_pitch": float(contacts[0].pitch),
+            "tactile_images": [float(v) for c in contacts for v in c.image]}
 
 
 def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
@@ -280,8 +290,16 @@ def msg_to_haptic(msg: HapticReadingMsg) -> HapticReading:
         raise MessageError(f"{what}: weight {msg.weight} unusable")
     if not all(math.isfinite(v) for v in point_tuple(msg.position)):
         raise MessageError(f"{what}: position not finite")
-    contacts = tuple(TactileContact(point=p, normal=n, probe=(offsets[2 * i], offsets[2 * i + 1]))
-                     for i, (p, n) in enumerate(zip(points, normals, strict=True)))
+    n = int(msg.tactile_taxels)
+    images = [float(v) for v in msg.tactile_images]
+    if len(images) != n * n * len(points) or (n and not math.isfinite(msg.tactile_pitch)):
+        raise MessageError(f"{what}: {len(images)} tactile image values for {len(points)} "
+                           f"contacts of {n} x {n} taxels")
+    size = n * n
+    contacts = tuple(TactileContact(point=p, normal=n_, probe=(offsets[2 * i], offsets[2 * i + 1]),
+                                    image=tuple(images[i * size:(i + 1) * size]),
+                                    pitch=float(msg.tactile_pitch) if n else 0.0)
+                     for i, (p, n_) in enumerate(zip(points, normals, strict=True)))
     return HapticReading(arm=int(msg.arm), contact=True, position=point_tuple(msg.position),
                          weight=float(msg.weight), contacts=contacts)
 

@@ -9,6 +9,7 @@ x forward, y to the left, z up; metres, kilograms, radians, seconds of simulated
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 
@@ -177,11 +178,24 @@ class TactileContact:
             top face), robot frame.
         probe: Horizontal offset of the hand from the first touch when it touched,
             robot frame (dx, dy), metres; (0, 0) for the first touch.
+        image: The tactile array's image of the touch: ``taxels`` x ``taxels`` values, row
+            by row in the pad's own frame, each the depth of the surface below the flat
+            pad at that taxel, metres (negative: pressed into the skin), NaN where no
+            surface lies within the skin's range (no pressure there); empty without an
+            array.
+        pitch: Distance between two neighbouring taxels, metres; 0 without an array.
     """
 
     point: tuple[float, float, float]
     normal: tuple[float, float, float]
     probe: tuple[float, float] = (0.0, 0.0)
+    image: tuple[float, ...] = ()
+    pitch: float = 0.0
+
+    @property
+    def taxels(self) -> int:
+        """Taxels along each side of the image (0 without one)."""
+        return int(round(math.sqrt(len(self.image))))
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,9 @@ class HapticMemory:
         self._positions: list[np.ndarray] = []
         self._weights: list[float] = []
         self._touch: list[list[tuple[TactileContact, ...]]] = []
+        # touch_shape of each entry's readings, computed when they change (every frame
+        # asks for it; the tactile images make it cost a millisecond).
+        self._shape: list[tuple[float, float, float] | None] = []
 
     def __len__(self) -> int:
         return len(self._weights)
@@ -66,10 +69,12 @@ class HapticMemory:
             self._positions[i] = pos
             self._weights[i] = float(reading.weight)
             self._touch[i] = (self._touch[i] + touches)[-TOUCH_READINGS:]
+            self._shape[i] = touch_shape(self._touch[i])
         else:
             self._positions.append(pos)
             self._weights.append(float(reading.weight))
             self._touch.append(touches)
+            self._shape.append(touch_shape(touches))
         return True
 
     def weight_near(self, position: Sequence[float]) -> float | None:
@@ -82,13 +87,14 @@ class HapticMemory:
         nearest position within the radius; None without one, or when none of its
         readings reported touches."""
         i = self._nearest(np.asarray(position, float))
-        return None if i is None else touch_shape(self._touch[i])
+        return None if i is None else self._shape[i]
 
     def clear(self) -> None:
         """Forget every reading."""
         self._positions.clear()
         self._weights.clear()
         self._touch.clear()
+        self._shape.clear()
 
     def _nearest(self, pos: np.ndarray) -> int | None:
         return nearest_within(self._positions, pos, self.radius)

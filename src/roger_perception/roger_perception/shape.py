@@ -142,6 +142,18 @@ CREASE_FULL_RAD: float = math.pi / 4
 #: under 3 cm saturates at 1.
 TK_SCALE_M: float = 0.03
 
+#: A tactile image shows a ridge (``tactile_ridge``) when its pressed taxels form a line at
+#: most this wide (metres; a prism's 60-degree flanks drop 3 mm, the skin's range, within
+#: 2 mm of the ridge, so its line is 2-3 taxels wide)...
+RIDGE_WIDTH_M: float = 0.006
+#: ...and at least this long (metres)...
+RIDGE_LENGTH_M: float = 0.015
+#: ...with unpressed skin beyond it on both sides, all along it (this many taxels beyond
+#: its last pressed taxel at least, and as many as half the line's length): a surface that
+#: falls away on both sides, not the pad's own border resting on the edge of a flat top or
+#: on a flank (pressed along one border of the pad only).
+RIDGE_MARGIN_TAXELS: float = 0.5
+
 #: Heights are divided by this (metres): a 0.22 m box seen from 35-60 degrees above reads
 #: z_over up to about 0.45 m (its far rim), so nothing saturates.
 H_MAX_M: float = 0.5
@@ -331,12 +343,47 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
                  if smooth else 0.0)
     creases = [max((max(0.0, angle - curvature * dist) for dist, _, angle in pairs),
                    default=0.0) for pairs in all_pairs]
+    # A touch whose tactile image shows a ridge crossed a full crease under the pad itself.
+    creases = [CREASE_FULL_RAD if any(tactile_ridge(c) for c in contacts) else crease
+               for crease, contacts in zip(creases, readings, strict=True)]
     crease = _unit(float(np.median(creases)) / CREASE_FULL_RAD)
     # The curvature of a smooth surface: where the touches cross a crease (TC 1) the faces
     # are flat and what the pairs read as a curve is an edge's normal (module docstring).
     smooth_share = 1.0 - crease if math.isfinite(crease) else 1.0
     return (_unit(float(np.median(tops)) / H_MAX_M),
             _unit(curvature * TK_SCALE_M * smooth_share), crease)
+
+
+def tactile_ridge(contact: TactileContact) -> bool:
+    """True when the touch's tactile image shows a ridge under the pad: the pressed taxels
+    lie along a line (``RIDGE_WIDTH_M`` wide at most, ``RIDGE_LENGTH_M`` long at least)
+    with unpressed skin on both sides of it all along (``RIDGE_MARGIN_TAXELS``).
+
+    A flat top pressed over the pad reads an area; the pad's border resting on a top's edge
+    or on a flank, a line along the border (one side only); a sphere, a disc 2.5 cm across
+    or more (within the skin's 3 mm of its top). Only a prism's ridge, or the edge where
+    two faces meet under the pad, reads a line with the surface falling away on both sides.
+    False without an image.
+    """
+    n = contact.taxels
+    if n < 3 or contact.pitch <= 0.0:
+        return False
+    pressed = np.isfinite(np.asarray(contact.image, float))
+    if int(pressed.sum()) < 3:
+        return False
+    rows, cols = np.divmod(np.arange(n * n), n)
+    xy = np.stack([cols, rows], axis=1) * contact.pitch
+    centre = xy[pressed].mean(axis=0)
+    _, axes = np.linalg.eigh(np.cov((xy[pressed] - centre).T))
+    across, along = (xy - centre) @ axes[:, 0], (xy - centre) @ axes[:, 1]
+    a_in, l_in = across[pressed], along[pressed]
+    if np.ptp(a_in) > RIDGE_WIDTH_M or np.ptp(l_in) < RIDGE_LENGTH_M:
+        return False
+    beside = ~pressed & (along >= l_in.min()) & (along <= l_in.max())
+    margin = RIDGE_MARGIN_TAXELS * contact.pitch
+    need = 0.5 * np.ptp(l_in) / contact.pitch
+    return bool(np.sum(beside & (across < a_in.min() - margin)) >= need
+                and np.sum(beside & (across > a_in.max() + margin)) >= need)
 
 
 def _unit_vector(v: Sequence[float]) -> np.ndarray:

@@ -75,6 +75,13 @@ class SimConfig:
         tactile_normal_noise_rad: Std of the Gaussian noise added to each component of a
             tactile contact's unit normal before it is normalised again (about that many
             radians of tilt per axis).
+        tactile_taxels: Taxels along each side of the hand's square tactile array (the
+            finger's 4 cm flat tip); each touch reports their image (``tactile_range_m``);
+            0: no array, touches report a point and a normal only.
+        tactile_range_m: Depth of the array's compliant skin: a taxel reports the surface's
+            depth below the pad where it lies at most this far below it (pressed), and
+            nothing where it lies deeper, metres.
+        tactile_depth_noise_m: Std of the Gaussian noise of each taxel's depth, metres.
     """
 
     image_size: int = 128
@@ -114,6 +121,9 @@ class SimConfig:
     reach_slack_m: float = 0.03
     tactile_noise_m: float = 0.001
     tactile_normal_noise_rad: float = 0.03
+    tactile_taxels: int = 21
+    tactile_range_m: float = 0.003
+    tactile_depth_noise_m: float = 0.0001
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -178,6 +188,12 @@ class SimConfig:
                "in [0, 0.05] m")
         _check("tactile_normal_noise_rad", self.tactile_normal_noise_rad,
                0.0 <= self.tactile_normal_noise_rad <= 0.5, "in [0, 0.5] rad")
+        _check("tactile_taxels", self.tactile_taxels,
+               self.tactile_taxels == 0 or 3 <= self.tactile_taxels <= 64, "0 or in [3, 64]")
+        _check("tactile_range_m", self.tactile_range_m, 0.0 < self.tactile_range_m <= 0.02,
+               "in (0, 0.02] m")
+        _check("tactile_depth_noise_m", self.tactile_depth_noise_m,
+               0.0 <= self.tactile_depth_noise_m <= 0.005, "in [0, 0.005] m")
 
     @property
     def focal_px(self) -> float:

@@ -57,8 +57,10 @@ from roger_sim.config import SimConfig
 from roger_sim.controllers import JointServo
 from roger_sim.robot import (
     ARM_REST,
+    FINGER,
     HOVER,
     JOINT_LIMITS,
+    PAD_HALF,
     REACH,
     RobotModel,
     arm_ik,
@@ -77,6 +79,8 @@ PROBE_STALL_M: float = 0.002
 #: Between probe touches the hand glides to this far above the first touch's height (the
 #: expected top) before it comes down at ``touch_speed``, metres.
 PROBE_GLIDE: float = 0.003
+#: A taxel's ray starts this far inside the pad, above a surface pressed into the skin.
+TAXEL_START: float = 0.003
 
 
 def weight_from_efforts(efforts: np.ndarray, gravity_model: np.ndarray) -> float:
@@ -155,6 +159,8 @@ class HapticRoutine:
         # Spawning draws nothing from ``rng``: the weight noise of this and every later goal
         # is the same with or without probe touches (probe_directions = 0 is today's run).
         self._tactile_rng = rng.spawn(1)[0]
+        # The tactile images' noise from a child of that (spawning draws nothing).
+        self._image_rng = self._tactile_rng.spawn(1)[0]
         self._contacts: list[TactileContact] = []
         self._probes = probe_offsets(config)
         self._next_probe = 0
@@ -218,10 +224,49 @@ class HapticRoutine:
         if self.config.tactile_normal_noise_rad > 0:
             unit = unit + self._tactile_rng.normal(0.0, self.config.tactile_normal_noise_rad, 3)
             unit = unit / max(float(np.linalg.norm(unit)), 1e-12)
+        image, pitch = self._tactile_image()
         self._contacts.append(TactileContact(
             point=(float(noisy[0]), float(noisy[1]), float(noisy[2])),
             normal=(float(unit[0]), float(unit[1]), float(unit[2])),
-            probe=(float(probe[0]), float(probe[1]))))
+            probe=(float(probe[0]), float(probe[1])), image=image, pitch=pitch))
+
+    def _tactile_image(self) -> tuple[tuple[float, ...], float]:
+        """The tactile array's image at this instant (``TactileContact.image``) and its
+        taxel pitch; ((), 0.0) without an array.
+
+        Each taxel casts a ray straight down the finger from just inside the pad to
+        ``tactile_range_m`` below it: the depth of what it meets there (the robot's own
+        links are passed through), or NaN. A skin that reports how far each taxel is
+        pressed, as optical tactile sensors do, over a range of a few millimetres.
+        """
+        n = self.config.tactile_taxels
+        if n == 0:
+            return (), 0.0
+        state = pb.getLinkState(self.robot.body, self.robot.hand_link[self.arm],
+                                computeForwardKinematics=True, physicsClientId=self.client)
+        origin = np.asarray(state[4], float)
+        rotation = np.asarray(pb.getMatrixFromQuaternion(state[5]), float).reshape(3, 3)
+        grid = np.linspace(-PAD_HALF, PAD_HALF, n)
+        xs, ys = np.meshgrid(grid, grid)  # row by row: y outer, x inner
+        local = np.stack([xs.ravel(), ys.ravel(), np.full(n * n, -FINGER)], axis=1)
+        down = rotation @ np.array([0.0, 0.0, -1.0])
+        pads = origin + local @ rotation.T
+        starts = pads - TAXEL_START * down
+        length = TAXEL_START + self.config.tactile_range_m
+        ends = pads + self.config.tactile_range_m * down
+        depth = np.full(n * n, math.inf)
+        # Up to three hits per ray, the first that is not the robot's own.
+        for k in range(3):
+            hits = pb.rayTestBatch(starts.tolist(), ends.tolist(), reportHitNumber=k,
+                                   physicsClientId=self.client)
+            for i, hit in enumerate(hits):
+                if hit[0] >= 0 and hit[0] != self.robot.body:
+                    depth[i] = min(depth[i], hit[2] * length - TAXEL_START)
+        if self.config.tactile_depth_noise_m > 0:
+            depth = depth + self._image_rng.normal(0.0, self.config.tactile_depth_noise_m,
+                                                   n * n)
+        depth[~(depth <= self.config.tactile_range_m)] = math.nan
+        return tuple(float(v) for v in depth), float(grid[1] - grid[0])
 
     @property
     def _probe_height(self) -> float:

@@ -36,6 +36,8 @@ LINK2: float = 0.5
 SHOULDER_Y: float = 0.2
 #: Length of the finger hanging below the wrist, metres.
 FINGER: float = 0.1
+#: Half the side of the finger's square flat tip (the hand's tactile pad), metres.
+PAD_HALF: float = 0.02
 #: Horizontal reach of a hand from its shoulder, metres (a little short of full extension).
 REACH: float = LINK1 + LINK2 - 0.02
 #: Closest horizontal distance a hand can work at from its shoulder, metres.
@@ -231,7 +233,7 @@ def build_robot(client: int, grey: float, visible: bool = False) -> RobotModel:
         links.append((f"{side}_elbow", first + 1, "rz", 0.8, (LINK1, 0.0, 0.0),
                       (LINK2 / 2.0, 0.02, 0.02), (LINK2 / 2.0, 0.0, 0.0)))
         links.append((f"{side}_hand", first + 2, "fixed", 0.2, (LINK2, 0.0, 0.0),
-                      (0.02, 0.02, FINGER / 2.0), (0.0, 0.0, -FINGER / 2.0)))
+                      (PAD_HALF, PAD_HALF, FINGER / 2.0), (0.0, 0.0, -FINGER / 2.0)))
     axes = {"rz": (0, 0, 1), "ry": (0, 1, 0), "pz": (0, 0, 1), "fixed": (0, 0, 1)}
     types = {"rz": pb.JOINT_REVOLUTE, "ry": pb.JOINT_REVOLUTE, "pz": pb.JOINT_PRISMATIC,
              "fixed": pb.JOINT_FIXED}
