@@ -109,14 +109,14 @@ def test_touch_reads_the_top_height_the_curvature_and_the_crease() -> None:
     from roger_perception.shape import CREASE_FULL_RAD, CREASE_RAD, TK_SCALE_M, tactile_shape
     flat = [TactileContact((0.6, 0.0, 0.12), (0.0, 0.0, 1.0)),
             TactileContact((0.64, 0.0, 0.121), (0.0, 0.0, 1.0), (0.04, 0.0))]
-    th, tk, tc = tactile_shape(flat)
+    th, tk, tc, _ = tactile_shape(flat)
     assert th == pytest.approx(0.121 / H_MAX_M) and tk == pytest.approx(0.0, abs=1e-6)
     assert tc == pytest.approx(0.0, abs=1e-6)
     # A flank 60 degrees from a flat touch: a crease, no curvature.
     tilt = np.radians(60.0)
     assert tilt > CREASE_RAD
     flank = TactileContact((0.63, 0.0, 0.07), (np.sin(tilt), 0.0, np.cos(tilt)), (0.04, 0.0))
-    th, tk, tc = tactile_shape([flat[0], flank])
+    th, tk, tc, _ = tactile_shape([flat[0], flank])
     assert th == pytest.approx(0.12 / H_MAX_M) and tk == pytest.approx(0.0, abs=1e-6)
     assert tc == pytest.approx(1.0)
     # Every crease of 45 degrees (CREASE_FULL_RAD) or more reads 1: the 60 and the 120
@@ -133,7 +133,7 @@ def test_touch_reads_the_top_height_the_curvature_and_the_crease() -> None:
         for dx, dy in dirs:
             n = np.array([dx, dy, np.sqrt(1 - dx * dx - dy * dy)])
             touches.append(TactileContact(tuple(np.add(centre, radius * n)), tuple(n)))
-        th, tk, tc = tactile_shape(touches)
+        th, tk, tc, _ = tactile_shape(touches)
         assert tk == pytest.approx(TK_SCALE_M / radius, rel=0.03), radius
         assert tc == pytest.approx(0.0, abs=0.04), radius  # 0.03 rad
     assert tactile_shape([]) is None
@@ -275,3 +275,45 @@ def test_a_tactile_image_shows_a_ridge_only_where_the_surface_falls_away_on_both
     assert tactile_shape([blind])[2] == pytest.approx(0.0, abs=1e-6)
     assert tactile_shape([not_ridges["a flat top under the whole pad"]])[2] == \
         pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_tactile_image_reads_a_flat_tops_rim_straight_or_round() -> None:
+    from roger_common.types import TactileContact
+    from roger_perception.shape import TR_SCALE_M, tactile_rim, tactile_shape
+
+    def touch(depth_of) -> TactileContact:
+        image, pitch = _image(depth_of)
+        return TactileContact((0.6, 0.0, 0.1), (0.0, 0.0, 1.0), image=image, pitch=pitch)
+
+    off = 0.05  # the ground, far below the skin's range
+    for angle in (0.0, 0.3, 0.8):  # a box's edge under the pad, turned
+        c, s = math.cos(angle), math.sin(angle)
+        # Straight: within the staircase of 2 mm taxels (a 7 cm rim reads 14 / m).
+        assert tactile_rim(touch(lambda x, y: -0.0005 if c * x + s * y < 0.006 else off)) \
+            < 4.0, angle
+    for radius in (0.03, 0.05, 0.07):  # a cylinder's rim, its centre off the pad
+        rims = []
+        for dx in (0.0, 0.0005, 0.001, 0.0015):  # where the rim falls between taxels
+            for dy in (0.0, 0.003, 0.007):
+                centre = (-radius + 0.008 + dx, dy)
+                rims.append(tactile_rim(touch(lambda x, y, c=centre, r=radius: -0.0005 if
+                                              math.hypot(x - c[0], y - c[1]) < r else off)))
+        assert all(r is not None for r in rims), radius
+        # Each within the 2 mm taxels' staircase; their median within 15 %.
+        assert np.median(rims) == pytest.approx(1.0 / radius, rel=0.15), (radius, rims)
+        assert all(0.6 / radius < r < 1.4 / radius for r in rims), (radius, rims)
+    no_rim = {
+        "the whole pad on a top": touch(lambda x, y: -0.0005),
+        "a box's corner": touch(lambda x, y: -0.0005 if x < 0.004 and y < 0.004 else off),
+        "a sphere's top": touch(lambda x, y: (x * x + y * y) / (2 * 0.05) - 0.0005),
+        "a ridge": touch(lambda x, y: 1.7 * abs(x) - 0.0005),
+        "no image": TactileContact((0.6, 0.0, 0.1), (0.0, 0.0, 1.0)),
+    }
+    for what, contact in no_rim.items():
+        assert tactile_rim(contact) is None, what
+    # TR: the median rim over the touches, scaled; unknown (NaN) without one.
+    arc = touch(lambda x, y: -0.0005 if math.hypot(x + 0.042, y - 0.003) < 0.05 else off)
+    assert tactile_shape([arc, no_rim["the whole pad on a top"]])[3] == pytest.approx(
+        TR_SCALE_M * tactile_rim(arc))
+    assert tactile_rim(arc) == pytest.approx(1.0 / 0.05, rel=0.3)
+    assert math.isnan(tactile_shape([no_rim["the whole pad on a top"]])[3])

@@ -371,7 +371,8 @@ def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -
     names = feature_names("extended")
     o, tc, tk = names.index("O"), names.index("TC"), names.index("TK")
     assert cfg.flat_veto[o] < 0.13 and cfg.veto[o] >= 1.0
-    assert all(v >= 1.0 for i, v in enumerate(cfg.flat_veto) if names[i] not in ("O", "A"))
+    assert all(v >= 1.0 for i, v in enumerate(cfg.flat_veto)
+               if names[i] not in ("O", "A", "TR"))
     assert cfg.flat_veto[names.index("A")] < 1.0  # a flat top's grey: the same everywhere
     known = np.ones(len(names), bool)
     for what, crease, curvature, vetoed in (("box against cylinder", 0.1, 0.0, True),
@@ -393,6 +394,39 @@ def test_the_outline_vetoes_only_between_tops_the_hand_found_smooth_and_flat() -
     # In the paper mode the rule has nothing to read (no touch features).
     paper = MemoryConfig.for_mode("paper")
     assert all(v >= 1.0 for v in paper.flat_veto)
+
+
+def test_the_rims_curvature_vetoes_only_between_flat_tops() -> None:
+    """TR (the curvature of a flat top's rim under the tactile array: a box's edge about 0,
+    a 10 cm cylinder's about 0.4) vetoes between two looks the hand found smooth and flat,
+    at ``flat_veto``; never in general (two looks of one object share one value, so its own
+    repeats measure no noise), and not where either look has not felt a rim."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    r, o, tc, tk = (names.index(n) for n in ("TR", "O", "TC", "TK"))
+    assert cfg.veto[r] >= 1.0 and 0.15 < cfg.flat_veto[r] < 0.4
+    known = np.ones(len(names), bool)
+    x = np.full(len(names), 0.4)
+    x[tc], x[tk], x[o], x[r] = 0.1, 0.0, 0.12, 0.02  # a box, its outline near the split
+    for what, crease, curvature, vetoed in (("flat tops", 0.1, 0.0, True),
+                                            ("touch found a crease", 1.0, 0.0, False)):
+        stored = x.copy()
+        stored[tc], stored[tk] = crease, curvature
+        memory = AssociativeMemory(cfg, seed=3)
+        memory.store(stored, known)
+        q = stored.copy()
+        q[r] = 0.45  # a cylinder's rim
+        decision = memory.decide(q, known, final_trial=True)
+        assert decision.vetoed is vetoed, what
+        unknown = known.copy()
+        unknown[r] = False
+        assert memory.decide(q, unknown, final_trial=True).vetoed is False, what
+    # Within the flat veto: two boxes' rims, or a big cylinder's against another's.
+    memory = AssociativeMemory(cfg, seed=3)
+    memory.store(x, known)
+    q = x.copy()
+    q[r] = 0.15
+    assert memory.decide(q, known, final_trial=True).vetoed is False
 
 
 def _stored_then_asked(cfg: MemoryConfig, x: np.ndarray, q: np.ndarray, known: np.ndarray,

@@ -220,6 +220,22 @@ def test_the_tactile_array_feels_a_ridge_as_a_line_and_a_top_as_an_area(
         SimConfig(tactile_taxels=2)
 
 
+def test_the_probes_feel_a_cylinders_round_rim_and_a_boxs_straight_edge() -> None:
+    from roger_perception.shape import TR_SCALE_M, tactile_shape
+    size = 0.08
+    world = {"name": "rims", "objects": [
+        {"name": "cylinder", "shape": "cylinder", "position": [0.6, 0.3], "size": size,
+         "intensity": 80, "weight": 0.5},
+        {"name": "box", "shape": "box", "position": [0.6, -0.3], "yaw": 0.4, "size": size,
+         "intensity": 80, "weight": 0.5}]}
+    readings = run_haptics(world, SimConfig())
+    tr = {name: tactile_shape(r[1].contacts)[3] for name, r in readings.items()}
+    # The 4 cm probes reach over a 8 cm top's rim: a circle of radius size / 2, or straight
+    # (the staircase of the taxels only).
+    assert tr["cylinder"] == pytest.approx(TR_SCALE_M / (size / 2), rel=0.2), tr
+    assert tr["box"] < 0.1, tr
+
+
 def test_probing_costs_at_most_half_again(table1_readings: dict) -> None:
     # Simulated time (deterministic), not wall-clock time: the probes' budget.
     for name, (steps, _, _) in BEFORE_PROBES.items():

@@ -42,11 +42,13 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 #: hand found curved, and vetoes there). From touch (unknown, like W, until a haptic
 #: improvement): TH the height of the top the hand
 #: touched, TK the curvature its touches agree on (0 on a flat top or a flank, 1 / radius
-#: on a sphere) and TC the crease between them that the curvature does not explain (a
-#: prism's ridge).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "AS", "TH", "TK", "TC")
+#: on a sphere), TC the crease between them that the curvature does not explain (a
+#: prism's ridge) and TR the curvature of a flat top's rim the tactile array felt under the
+#: pad (0 for a box's straight edge, 2 / size for a cylinder's; unknown where no touch
+#: reached over a rim).
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "AS", "TH", "TK", "TC", "TR")
 #: The features a haptic improvement measures (unknown before one): W and touch's shape.
-TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC")
+TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC", "TR")
 #: The features only a visual improvement's foveal look measures (unknown before one).
 FOVEA_FEATURE_NAMES: tuple[str, ...] = ("O",)
 

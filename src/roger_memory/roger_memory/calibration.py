@@ -447,9 +447,13 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
          outlier_share: float, iterations: int, max_pairs: int, seed: int,
          flat: np.ndarray | None = None, creased: np.ndarray | None = None,
          creased_unused: np.ndarray | None = None, straight: np.ndarray | None = None,
-         curved: np.ndarray | None = None) -> _Fit:
+         curved: np.ndarray | None = None, partial: bool = False) -> _Fit:
     """The cap-independent part of ``calibrate``: the pairs, the look-to-look and category
-    scales (the EM mixture), the between-entry scale and the information weights."""
+    scales (the EM mixture), the between-entry scale and the information weights.
+
+    ``partial`` (a sub-fit on some of the looks): a feature never known in two looks of
+    one entry there (TR, a flat top's rim, on the curved looks of spheres) is left out of
+    the fit (scales 1, weight 0) instead of raising."""
     x = np.asarray(features, np.float64)
     k = np.asarray(known, bool)
     if x.ndim != 2 or k.shape != x.shape:
@@ -466,11 +470,13 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
     cr = np.zeros(len(x), bool) if creased is None else np.asarray(creased, bool)
     d0, c0 = x[i0] - x[j0], uncreased_common(k[i0] & k[j0], cr[i0], cr[j0], creased_unused)
     entry_scale = _robust_scale(d0, c0)
-    if not np.all(np.isfinite(entry_scale)):
+    never = ~np.isfinite(entry_scale)
+    if never.any() and (not partial or never.all()):
         raise ValueError("some feature is never known in two looks of one entry")
-    entry_scale = np.maximum(entry_scale, 1e-4)
+    entry_scale = np.where(never, 1.0, np.maximum(entry_scale, 1e-4))
 
     d1, c1 = x[i1] - x[j1], uncreased_common(k[i1] & k[j1], cr[i1], cr[j1], creased_unused)
+    c0, c1 = c0 & ~never, c1 & ~never
     a1 = np.abs(d1)
     feat = np.arange(n_feat)[None, :]
     bins = np.clip(np.searchsorted(_EDGES, a1, side="right") - 1, 0, len(_EDGES) - 2)
@@ -494,10 +500,10 @@ def _fit(features: np.ndarray, known: np.ndarray, run: np.ndarray, entry: np.nda
         share = float(np.clip(resp.mean(), 1e-3, 0.999))
         core = np.exp(log_core + log_g - log_m)
         w = resp[:, None] * core * c1
-        scale = np.maximum(np.sqrt((w * d1 ** 2).sum(axis=0) / (2.0 * w.sum(axis=0))),
-                           entry_scale)
+        total = np.where(never, 1.0, w.sum(axis=0))
+        scale = np.maximum(np.sqrt((w * d1 ** 2).sum(axis=0) / (2.0 * total)), entry_scale)
 
-    between_scale = np.maximum(_robust_scale(d1, c1), 1e-4)
+    between_scale = np.where(never, 1.0, np.maximum(_robust_scale(d1, c1), 1e-4))
     weight = information_weight(between_scale, scale)
     # The same fit on the flat looks alone (how one flat top's features spread, and a flat
     # category's), on the straight-edged flat looks alone and on the curved ones.
@@ -516,7 +522,8 @@ def _sub_fit(x: np.ndarray, k: np.ndarray, run: np.ndarray, entry: np.ndarray,
         return None
     m = np.asarray(mask, bool)
     try:
-        return _fit(x[m], k[m], run[m], entry[m], outlier_share, iterations, max_pairs, seed)
+        return _fit(x[m], k[m], run[m], entry[m], outlier_share, iterations, max_pairs, seed,
+                    partial=True)
     except ValueError:
         return None
 

@@ -46,21 +46,23 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02677, 0.03898, 0.04739, 0.00526, 0.00572, 0.00539,
-    0.03001, 0.02608, 0.02490, 0.00465, 0.01046, 0.02794,
-    0.01726, 0.01372, 0.01970, 0.00126, 0.00526, 0.02477)
+    0.02692, 0.03916, 0.04764, 0.00526, 0.00572, 0.00541,
+    0.02987, 0.02560, 0.02408, 0.00460, 0.01062, 0.02769,
+    0.01726, 0.01369, 0.01975, 0.00125, 0.00552, 0.02520,
+    0.03801)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.617, 1.250, 1.065, 0.563, 0.474, 0.512,
-    0.399, 0.308, 0.029, 1.794, 3.261, 0.545,
-    1.392, 1.680, 1.504, 0.742, 0.429, 0.435)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.34
+    1.529, 1.183, 1.005, 0.532, 0.448, 0.481,
+    0.392, 0.316, 0.069, 1.718, 3.065, 0.531,
+    1.317, 1.594, 1.426, 0.791, 0.357, 0.402,
+    1.843)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.49
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
 #: copies seen from two places differ in them by more than one object's own looks ever
 #: do, and a veto measured on those looks turned copies away (docs/memory.md, "Only
 #: view-invariant features veto"). They still count in every distance, capped; only
-#: D, W and the 3-D and touch features (H, TH, TK, TC) may veto.
+#: D, W and the 3-D and touch features (H, TH, TK, TR) may veto.
 #: A (the brightest surface's grey) is view dependent for a sphere and a prism (their
 #: brightest visible surface turns with bearing and yaw), not for a flat top. AS (the
 #: albedo a sphere's normals give the shading) is view dependent for every other shape;
@@ -76,17 +78,27 @@ VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
 #: such a reading (2.14 on the 2641-look recording, 0.23 on the 2700-look one, where it
 #: stored prism copies again in closed loop: docs/memory.md, "A missed crease").
 MISSABLE_FEATURES: tuple[str, ...] = ("TC",)
+#: Features measured on flat tops only, that veto between two flat looks alone
+#: (FLAT_VETO_FEATURES): TR, the curvature of the rim the tactile array felt (0 on a box's
+#: straight edge, 2 / size on a cylinder's; unknown on spheres and prisms, whose tops do
+#: not lie flat under the pad). Every look of an object carries the rims of its last
+#: readings, so two looks of one entry nearly always share one value and its repeats
+#: measure no noise: scaled from that to the category spread (the general veto) it read
+#: 33.6, beyond its range (docs/memory.md, "A flat top's rim").
+FLAT_ONLY_FEATURES: tuple[str, ...] = ("TR",)
 #: The extended mode's features that never veto (``calibration.calibrate``'s
-#: ``vetoing`` is every other feature).
-NEVER_VETO_FEATURES: tuple[str, ...] = VIEW_DEPENDENT_FEATURES + MISSABLE_FEATURES
+#: ``vetoing`` is every other feature); FLAT_ONLY_FEATURES veto between flat looks.
+NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATURES
+                                        + FLAT_ONLY_FEATURES)
 #: NEVER_VETO_FEATURES' vetoes are NO_VETO (1.0: no difference of features in [0, 1]
 #: exceeds it). TK's lay beyond that range until TK was measured on smooth surfaces only
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0375, 0.0487, 0.2372,
-    1.0, 1.0, 1.0, 0.0235, 0.2158, 1.0)
-EXTENDED_NOISE_DOF: float = 4.32
+    1.0, 1.0, 1.0, 0.0370, 0.0494, 0.2320,
+    1.0, 1.0, 1.0, 0.0233, 0.2264, 1.0,
+    1.0)
+EXTENDED_NOISE_DOF: float = 3.84
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -98,14 +110,15 @@ EXTENDED_NOISE_DOF: float = 4.32
 #: (docs/memory.md, "The outline vetoes between flat tops"). And A: a flat top's grey
 #: under the one light is the same from every place (docs/perception.md, "The brightest
 #: surface's grey").
-FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A")
+FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A") + FLAT_ONLY_FEATURES
 #: The extended mode's veto between two flat looks: NO_VETO (1.0) but for
 #: FLAT_VETO_FEATURES, calibrated on the same looks (``calibration.calibrate``'s
 #: ``flat_veto``).
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0858, 0.0912, 1.0, 1.0, 1.0, 1.0)
+    0.0946, 0.1000, 1.0, 1.0, 1.0, 1.0,
+    0.3225)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -123,7 +136,8 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0231, 1.0, 1.0, 1.0, 1.0)
+    1.0, 0.0245, 1.0, 1.0, 1.0, 1.0,
+    1.0)
 #: The features that veto between two looks the hand found smooth and curved
 #: (``MemoryConfig.curved_veto``: TC < ``flat_crease``, TK >= ``flat_curvature``, a
 #: sphere): AS. A sphere's albedo under the known light reads alike from every place
@@ -138,7 +152,8 @@ CURVED_VETO_FEATURES: tuple[str, ...] = ("AS",)
 EXTENDED_CURVED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 0.0422, 1.0, 1.0, 1.0)
+    1.0, 1.0, 0.0407, 1.0, 1.0, 1.0,
+    1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
@@ -152,11 +167,11 @@ EXTENDED_CURVED_VETO: tuple[float, ...] = (
 #: distance, none with A alone; docs/memory.md, "The brightest grey between two creased
 #: looks".)
 CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A")
-#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
+#: The extended mode caps each feature's |z| at 6.0 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.5
+EXTENDED_Z_CAP: float = 6.0
 
 
 @dataclass(frozen=True)

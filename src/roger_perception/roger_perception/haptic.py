@@ -41,7 +41,7 @@ class HapticMemory:
         self._touch: list[list[tuple[TactileContact, ...]]] = []
         # touch_shape of each entry's readings, computed when they change (every frame
         # asks for it; the tactile images make it cost a millisecond).
-        self._shape: list[tuple[float, float, float] | None] = []
+        self._shape: list[tuple[float, float, float, float] | None] = []
 
     def __len__(self) -> int:
         return len(self._weights)
@@ -83,9 +83,9 @@ class HapticMemory:
         return None if i is None else self._weights[i]
 
     def touch_near(self, position: Sequence[float]) -> tuple[float, ...] | None:
-        """TH, TK, TC (``shape.touch_shape``) of the touches of the last readings at the
-        nearest position within the radius; None without one, or when none of its
-        readings reported touches."""
+        """TH, TK, TC, TR (``shape.touch_shape``; TR NaN where unknown) of the touches of
+        the last readings at the nearest position within the radius; None without one, or
+        when none of its readings reported touches."""
         i = self._nearest(np.asarray(position, float))
         return None if i is None else self._shape[i]
 

@@ -338,9 +338,11 @@ class Perception:
             extra[1], extra_known[1] = o_near, True
         touch = self.haptic_memory.touch_near(position)
         if touch is not None:
-            # The touch features come last (TOUCH_FEATURE_NAMES less W).
-            extra[-len(touch):] = touch
-            extra_known[-len(touch):] = True
+            # The touch features come last (TOUCH_FEATURE_NAMES less W); TR is unknown
+            # (NaN) until a touch reached over a flat top's rim.
+            values = np.asarray(touch, float)
+            extra[-len(touch):] = np.nan_to_num(values)
+            extra_known[-len(touch):] = np.isfinite(values)
         return (np.concatenate([feats, extra]).astype(np.float32),
                 np.concatenate([known, extra_known]))
 

@@ -154,6 +154,24 @@ RIDGE_LENGTH_M: float = 0.015
 #: on a flank (pressed along one border of the pad only).
 RIDGE_MARGIN_TAXELS: float = 0.5
 
+#: A tactile image is a flat top pressed (``tactile_rim``) when its pressed taxels' depths
+#: span at most this (metres, 5th to 95th percentile): the pad lies flat on it. A ridge's
+#: or a sphere's depths span the skin's whole 3 mm.
+FLAT_PRESS_M: float = 0.001
+#: A rim is read from at least this many points of the pressed region's border inside the
+#: pad...
+RIM_MIN_TAXELS: int = 8
+#: ...at least this long (metres): a shorter piece tells a straight edge from a 7 cm
+#: cylinder's rim (sagitta 0.7 mm over 2 cm) no better than a taxel's staircase does.
+RIM_MIN_LENGTH_M: float = 0.02
+#: A rim's parabola fits its border within this RMS (metres): a straight edge's or a
+#: cylinder's rim within the staircase of 2 mm taxels (0.4-0.5 mm); a box's corner, two
+#: straight edges at right angles, does not.
+RIM_FIT_M: float = 0.0007
+#: TR is the rim's curvature (1/m) times this: a cylinder of 0.06-0.14 m reads 0.67-0.29, a
+#: straight edge 0.
+TR_SCALE_M: float = 0.02
+
 #: Heights are divided by this (metres): a 0.22 m box seen from 35-60 degrees above reads
 #: z_over up to about 0.45 m (its far rim), so nothing saturates.
 H_MAX_M: float = 0.5
@@ -294,34 +312,39 @@ def visual_features(z_over: float) -> tuple[float]:
     return (_unit(z_over / H_MAX_M),)
 
 
-def tactile_shape(contacts: Sequence[TactileContact]) -> tuple[float, float, float] | None:
-    """TH, TK and TC from one haptic improvement's touches, normalised to [0, 1].
+def tactile_shape(contacts: Sequence[TactileContact]
+                  ) -> tuple[float, float, float, float] | None:
+    """TH, TK, TC and TR from one haptic improvement's touches, normalised to [0, 1].
 
     Args:
         contacts: The touches, first one first (``HapticReading.contacts``).
 
     Returns:
-        (TH, TK, TC), or None without a touch. With a single touch (or touches all closer
-        than ``MIN_PAIR_M``) TK and TC are 0: no pair shows a curve or a crease.
+        (TH, TK, TC, TR), or None without a touch. With a single touch (or touches all
+        closer than ``MIN_PAIR_M``) TK and TC are 0 (no pair shows a curve or a crease)
+        unless its tactile image shows a ridge; TR is NaN where no tactile image shows a
+        flat top's rim.
     """
     return touch_shape([contacts])
 
 
 def touch_shape(readings: Sequence[Sequence[TactileContact]]
-                ) -> tuple[float, float, float] | None:
-    """TH, TK and TC of one object from the touches of one or more haptic readings.
+                ) -> tuple[float, float, float, float] | None:
+    """TH, TK, TC and TR of one object from the touches of one or more haptic readings.
 
     Pairs of touches are formed within a reading only. TK is the least-squares curvature
     over the smooth pairs of every reading, times 1 - TC; TH and TC are the medians over
     the readings of each reading's top height and crease (the crease measured against the
-    pooled curvature).
+    pooled curvature); TR the median of every rim the touches' tactile images show
+    (``tactile_rim``), times ``TR_SCALE_M``, NaN without one.
 
     Args:
         readings: Each reading's touches (``HapticReading.contacts``); empty ones are
             skipped.
 
     Returns:
-        (TH, TK, TC) normalised to [0, 1], or None when no reading has a touch.
+        (TH, TK, TC, TR) normalised to [0, 1] (TR NaN where unknown), or None when no
+        reading has a touch.
     """
     readings = [r for r in readings if r]
     if not readings:
@@ -350,8 +373,10 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
     # The curvature of a smooth surface: where the touches cross a crease (TC 1) the faces
     # are flat and what the pairs read as a curve is an edge's normal (module docstring).
     smooth_share = 1.0 - crease if math.isfinite(crease) else 1.0
+    rims = [r for contacts in readings for r in map(tactile_rim, contacts) if r is not None]
+    rim = _unit(float(np.median(rims)) * TR_SCALE_M) if rims else math.nan
     return (_unit(float(np.median(tops)) / H_MAX_M),
-            _unit(curvature * TK_SCALE_M * smooth_share), crease)
+            _unit(curvature * TK_SCALE_M * smooth_share), crease, rim)
 
 
 def tactile_ridge(contact: TactileContact) -> bool:
@@ -384,6 +409,51 @@ def tactile_ridge(contact: TactileContact) -> bool:
     need = 0.5 * np.ptp(l_in) / contact.pitch
     return bool(np.sum(beside & (across < a_in.min() - margin)) >= need
                 and np.sum(beside & (across > a_in.max() + margin)) >= need)
+
+
+def tactile_rim(contact: TactileContact) -> float | None:
+    """The curvature (1/m, unsigned) of a flat top's rim under the pad, from the touch's
+    tactile image; None where the image shows no rim of a flat top.
+
+    The pad lies flat on a top (the pressed taxels' depths within ``FLAT_PRESS_M``) and
+    reaches over its rim: the pressed region's border inside the pad (the midpoints between
+    a pressed taxel and an unpressed neighbour in its row or column; the pad's own border is
+    not counted) is the rim, ``RIM_MIN_TAXELS`` points and ``RIM_MIN_LENGTH_M`` long at
+    least. In the frame of its principal axes
+    (u along it, v across) a parabola v = a + b u + c u^2 is fitted (least squares): the
+    curvature is |2 c| (a circle of radius R reads 1 / R, a straight edge the noise of its
+    staircase of taxels). A border the parabola does not follow within ``RIM_FIT_M`` RMS
+    is None: a box's corner, two straight edges at right angles (or two pieces of them, the
+    corner itself beyond the pad's border).
+    """
+    n = contact.taxels
+    if n < 3 or contact.pitch <= 0.0:
+        return None
+    depth = np.asarray(contact.image, float).reshape(n, n)
+    pressed = np.isfinite(depth)
+    if pressed.all() or int(pressed.sum()) < RIM_MIN_TAXELS:
+        return None
+    lo, hi = np.quantile(depth[pressed], [0.05, 0.95])
+    if hi - lo > FLAT_PRESS_M:
+        return None
+    # The border: midway between each pressed taxel and an unpressed neighbour in its row
+    # or column (the pad's own border is no rim).
+    across_cols = np.nonzero(pressed[:, :-1] != pressed[:, 1:])
+    across_rows = np.nonzero(pressed[:-1, :] != pressed[1:, :])
+    rim = np.concatenate([
+        np.stack([across_cols[1] + 0.5, across_cols[0]], axis=1),
+        np.stack([across_rows[1], across_rows[0] + 0.5], axis=1)]) * contact.pitch
+    if len(rim) < RIM_MIN_TAXELS:
+        return None
+    centre = rim.mean(axis=0)
+    _, _, axes = np.linalg.svd(rim - centre, full_matrices=False)
+    u, v = (rim - centre) @ axes[0], (rim - centre) @ axes[1]
+    if np.ptp(u) < RIM_MIN_LENGTH_M:
+        return None
+    coef = np.polyfit(u, v, 2)
+    if float(np.sqrt(np.mean((np.polyval(coef, u) - v) ** 2))) > RIM_FIT_M:
+        return None  # a corner: two straight edges no parabola follows
+    return float(abs(2.0 * coef[0]))
 
 
 def _unit_vector(v: Sequence[float]) -> np.ndarray:
