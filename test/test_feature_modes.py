@@ -305,6 +305,11 @@ def test_a_tactile_image_reads_a_flat_tops_rim_straight_or_round() -> None:
     no_rim = {
         "the whole pad on a top": touch(lambda x, y: -0.0005),
         "a box's corner": touch(lambda x, y: -0.0005 if x < 0.004 and y < 0.004 else off),
+        "a box's corner turned 45 degrees": touch(
+            lambda x, y: -0.0005 if x > abs(y) - 0.012 else off),
+        "a corner beyond the pad, its edges cutting two of the pad's corners": touch(
+            lambda x, y: -0.0005 if x > abs(y) - 0.03 else off),
+        "an edge too short to tell": touch(lambda x, y: -0.0005 if x + y > -0.024 else off),
         "a sphere's top": touch(lambda x, y: (x * x + y * y) / (2 * 0.05) - 0.0005),
         "a ridge": touch(lambda x, y: 1.7 * abs(x) - 0.0005),
         "no image": TactileContact((0.6, 0.0, 0.1), (0.0, 0.0, 1.0)),

@@ -46,16 +46,16 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02692, 0.03916, 0.04764, 0.00526, 0.00572, 0.00541,
-    0.02987, 0.02560, 0.02408, 0.00460, 0.01062, 0.02769,
-    0.01726, 0.01369, 0.01975, 0.00125, 0.00552, 0.02520,
-    0.03801)
+    0.02691, 0.03934, 0.04772, 0.00526, 0.00578, 0.00545,
+    0.02979, 0.02553, 0.02406, 0.00459, 0.01064, 0.02769,
+    0.01723, 0.01368, 0.01975, 0.00125, 0.00550, 0.02524,
+    0.03496)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.529, 1.183, 1.005, 0.532, 0.448, 0.481,
-    0.392, 0.316, 0.069, 1.718, 3.065, 0.531,
-    1.317, 1.594, 1.426, 0.791, 0.357, 0.402,
-    1.843)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.49
+    1.516, 1.168, 0.994, 0.529, 0.434, 0.468,
+    0.391, 0.316, 0.069, 1.704, 3.036, 0.527,
+    1.306, 1.581, 1.413, 0.781, 0.358, 0.397,
+    2.011)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.39
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -84,7 +84,8 @@ MISSABLE_FEATURES: tuple[str, ...] = ("TC",)
 #: not lie flat under the pad). Every look of an object carries the rims of its last
 #: readings, so two looks of one entry nearly always share one value and its repeats
 #: measure no noise: scaled from that to the category spread (the general veto) it read
-#: 33.6, beyond its range (docs/memory.md, "A flat top's rim").
+#: 33.6 on the first recording with it, beyond its range (docs/memory.md, "A flat top's
+#: rim").
 FLAT_ONLY_FEATURES: tuple[str, ...] = ("TR",)
 #: The extended mode's features that never veto (``calibration.calibrate``'s
 #: ``vetoing`` is every other feature); FLAT_ONLY_FEATURES veto between flat looks.
@@ -95,10 +96,10 @@ NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATU
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0370, 0.0494, 0.2320,
-    1.0, 1.0, 1.0, 0.0233, 0.2264, 1.0,
+    1.0, 1.0, 1.0, 0.0369, 0.0495, 0.2309,
+    1.0, 1.0, 1.0, 0.0234, 0.2255, 1.0,
     1.0)
-EXTENDED_NOISE_DOF: float = 3.84
+EXTENDED_NOISE_DOF: float = 4.14
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -117,8 +118,8 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A") + FLAT_ONLY_FEATURES
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0946, 0.1000, 1.0, 1.0, 1.0, 1.0,
-    0.3225)
+    0.0863, 0.0915, 1.0, 1.0, 1.0, 1.0,
+    0.2720)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -136,7 +137,7 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0245, 1.0, 1.0, 1.0, 1.0,
+    1.0, 0.0226, 1.0, 1.0, 1.0, 1.0,
     1.0)
 #: The features that veto between two looks the hand found smooth and curved
 #: (``MemoryConfig.curved_veto``: TC < ``flat_crease``, TK >= ``flat_curvature``, a
@@ -167,11 +168,11 @@ EXTENDED_CURVED_VETO: tuple[float, ...] = (
 #: distance, none with A alone; docs/memory.md, "The brightest grey between two creased
 #: looks".)
 CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A")
-#: The extended mode caps each feature's |z| at 6.0 in every distance (MemoryConfig.z_cap),
+#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 6.0
+EXTENDED_Z_CAP: float = 5.5
 
 
 @dataclass(frozen=True)

@@ -161,9 +161,10 @@ FLAT_PRESS_M: float = 0.001
 #: A rim is read from at least this many points of the pressed region's border inside the
 #: pad...
 RIM_MIN_TAXELS: int = 8
-#: ...at least this long (metres): a shorter piece tells a straight edge from a 7 cm
-#: cylinder's rim (sagitta 0.7 mm over 2 cm) no better than a taxel's staircase does.
-RIM_MIN_LENGTH_M: float = 0.02
+#: ...at least this long (metres): over a shorter piece a box's edge (its rim rounded
+#: by a millimetre or two, the staircase of the 2 mm taxels) read up to 12 / m in closed
+#: loop, where a 0.14 m cylinder's reads 14.
+RIM_MIN_LENGTH_M: float = 0.03
 #: A rim's parabola fits its border within this RMS (metres): a straight edge's or a
 #: cylinder's rim within the staircase of 2 mm taxels (0.4-0.5 mm); a box's corner, two
 #: straight edges at right angles, does not.
@@ -422,9 +423,9 @@ def tactile_rim(contact: TactileContact) -> float | None:
     least. In the frame of its principal axes
     (u along it, v across) a parabola v = a + b u + c u^2 is fitted (least squares): the
     curvature is |2 c| (a circle of radius R reads 1 / R, a straight edge the noise of its
-    staircase of taxels). A border the parabola does not follow within ``RIM_FIT_M`` RMS
-    is None: a box's corner, two straight edges at right angles (or two pieces of them, the
-    corner itself beyond the pad's border).
+    staircase of taxels). None for a box's corner: a border the parabola does not follow
+    within ``RIM_FIT_M`` RMS, or the skin beyond the top in two pieces (the corner beyond
+    the pad, its edges cutting two of the pad's corners).
     """
     n = contact.taxels
     if n < 3 or contact.pitch <= 0.0:
@@ -435,6 +436,12 @@ def tactile_rim(contact: TactileContact) -> float | None:
         return None
     lo, hi = np.quantile(depth[pressed], [0.05, 0.95])
     if hi - lo > FLAT_PRESS_M:
+        return None
+    # One rim: the top and the skin beyond it each one piece (two pieces beyond: the pad
+    # over a corner, its two edges cutting two of the pad's corners).
+    pieces = [cv2.connectedComponents(part.astype(np.uint8), connectivity=4)[0] - 1
+              for part in (pressed, ~pressed)]
+    if pieces != [1, 1]:
         return None
     # The border: midway between each pressed taxel and an unpressed neighbour in its row
     # or column (the pad's own border is no rim).
