@@ -73,20 +73,11 @@ VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
 #: all stay on one flank of a prism finds no crease (TC 0, where the prism's other
 #: readings give 1; the median outvotes it once the object has been touched three
 #: times). A crease found is evidence of a crease, none found is not evidence of none,
-#: so TC's difference never vetoed until 2026-11-28; it counts in the distance. Its
-#: calibrated veto, the 99.9th percentile of one object's own repeats, depends on whether
-#: a recording caught such a reading (2.14 on the 2641-look recording, 0.23 on the
-#: 2700-look one, where it stored prism copies again in closed loop: docs/memory.md, "A
-#: missed crease").
-#: So TC's veto is not calibrated (the calibration treats it as never vetoing) but set by
-#: what TC is: CREASE_VETO. Since the tactile array shows a ridge under the pad (TC 1 in
-#: 97 % of single prism readings at the eyes' aim error, no box, cylinder or sphere touch
-#: reading a ridge; docs/perception.md, "A ridge under the pad"), a look whose touches
-#: crossed a crease (about 1) and one whose touches found none (0.05-0.15) differ by more
-#: than half TC's range: two shapes.
+#: so TC's difference never vetoes; it counts in the distance. Its calibrated veto, the
+#: 99.9th percentile of one object's own repeats, depends on whether a recording caught
+#: such a reading (2.14 on the 2641-look recording, 0.23 on the 2700-look one, where it
+#: stored prism copies again in closed loop: docs/memory.md, "A missed crease").
 MISSABLE_FEATURES: tuple[str, ...] = ("TC",)
-#: TC's shipped veto (module comment above): half its range.
-CREASE_VETO: float = 0.5
 #: Features measured on flat tops only, that veto between two flat looks alone
 #: (FLAT_VETO_FEATURES): TR, the curvature of the rim the tactile array felt (0 on a box's
 #: straight edge, 2 / size on a cylinder's; unknown on spheres and prisms, whose tops do
@@ -101,13 +92,12 @@ FLAT_ONLY_FEATURES: tuple[str, ...] = ("TR",)
 NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATURES
                                         + FLAT_ONLY_FEATURES)
 #: NEVER_VETO_FEATURES' vetoes are NO_VETO (1.0: no difference of features in [0, 1]
-#: exceeds it) but TC's, CREASE_VETO. TK's lay beyond that range until TK was measured on
-#: smooth surfaces only (1.26 before, a prism's edge reading taken for a curve); now it
-#: vetoes.
+#: exceeds it). TK's lay beyond that range until TK was measured on smooth surfaces only
+#: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 0.0369, 0.0495, 0.2309,
-    1.0, 1.0, 1.0, 0.0234, 0.2255, CREASE_VETO,
+    1.0, 1.0, 1.0, 0.0234, 0.2255, 1.0,
     1.0)
 EXTENDED_NOISE_DOF: float = 4.14
 #: The features that veto between two looks the hand found smooth and flat
