@@ -141,7 +141,13 @@ def test_box_tops_feel_flat(table1_readings: dict) -> None:
         contacts = reading.contacts
         # Every probe lands on the 30 cm box top: the first touch and one per direction.
         assert len(contacts) == 1 + cfg.probe_directions, (name, contacts)
-        assert [c.probe for c in contacts[1:]] == probe_offsets(cfg)
+        # Each probe pressed the pad all over, so each next one went probe_step_m farther.
+        out = [1 + k * cfg.probe_step_m / cfg.probe_radius_m
+               for k in range(cfg.probe_directions)]
+        assert [v for c in contacts[1:] for v in c.probe] == pytest.approx(
+            [v for (dx, dy), f in zip(probe_offsets(cfg), out, strict=True)
+             for v in (dx * f, dy * f)])
+        assert all(all(math.isfinite(v) for v in c.image) for c in contacts)
         top = 2 * before[2]
         for c in contacts:
             # Outward: up, not down, within the sensor's normal noise (Rayleigh, 6 sigma).
@@ -234,6 +240,35 @@ def test_the_probes_feel_a_cylinders_round_rim_and_a_boxs_straight_edge() -> Non
     # (the staircase of the taxels only).
     assert tr["cylinder"] == pytest.approx(TR_SCALE_M / (size / 2), rel=0.2), tr
     assert tr["box"] < 0.1, tr
+
+
+def test_a_probe_pressed_all_over_sends_the_next_ones_out_to_a_wide_tops_rim() -> None:
+    from roger_perception.shape import TR_SCALE_M, tactile_rim, tactile_shape
+    size = 0.15
+    world = {"name": "wide", "objects": [
+        {"name": "cylinder", "shape": "cylinder", "position": [0.6, 0.3], "size": size,
+         "intensity": 80, "weight": 0.5},
+        {"name": "box", "shape": "box", "position": [0.6, -0.3], "yaw": 0.4, "size": size,
+         "intensity": 80, "weight": 0.5}]}
+    fixed = run_haptics(world, SimConfig(probe_step_m=0.0))
+    stepped = run_haptics(world, SimConfig())
+    step = SimConfig().probe_step_m
+    for name in ("cylinder", "box"):
+        # At 4 cm every probe's pad lies on the 7.5 cm-radius top: no rim under any.
+        contacts = fixed[name][1].contacts
+        assert [round(math.hypot(*c.probe), 3) for c in contacts[1:]] == [0.04] * 3
+        assert all(tactile_rim(c) is None for c in contacts), name
+        # Stepping out: the first probe pressed all over, the next ones go farther.
+        contacts = stepped[name][1].contacts
+        reach = [math.hypot(*c.probe) for c in contacts[1:]]
+        assert reach[0] == pytest.approx(0.04) and reach[1] == pytest.approx(0.04 + step)
+        assert reach == sorted(reach), name
+    tr = {name: tactile_shape(r[1].contacts)[3] for name, r in stepped.items()}
+    assert tr["cylinder"] == pytest.approx(TR_SCALE_M / (size / 2), rel=0.25), tr
+    assert tr["box"] < 0.1, tr
+    # The few centimetres more across cost little simulated time.
+    assert (stepped["cylinder"][0].physics_steps
+            <= 1.05 * fixed["cylinder"][0].physics_steps)
 
 
 def test_probing_costs_at_most_half_again(table1_readings: dict) -> None:

@@ -46,16 +46,16 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02691, 0.03934, 0.04772, 0.00526, 0.00578, 0.00545,
-    0.02979, 0.02553, 0.02406, 0.00459, 0.01064, 0.02769,
-    0.01723, 0.01368, 0.01975, 0.00125, 0.00550, 0.02524,
-    0.03496)
+    0.02678, 0.03959, 0.04797, 0.00524, 0.00584, 0.00549,
+    0.02984, 0.02600, 0.02482, 0.00463, 0.01064, 0.02796,
+    0.01759, 0.01382, 0.01976, 0.00125, 0.00541, 0.02554,
+    0.02205)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.516, 1.168, 0.994, 0.529, 0.434, 0.468,
-    0.391, 0.316, 0.069, 1.704, 3.036, 0.527,
-    1.306, 1.581, 1.413, 0.781, 0.358, 0.397,
-    2.011)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.39
+    1.532, 1.170, 0.991, 0.534, 0.437, 0.464,
+    0.389, 0.300, 0.051, 1.701, 3.057, 0.520,
+    1.298, 1.580, 1.424, 0.783, 0.100, 0.390,
+    2.280)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.50
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -96,10 +96,10 @@ NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATU
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0369, 0.0495, 0.2309,
-    1.0, 1.0, 1.0, 0.0234, 0.2255, 1.0,
+    1.0, 1.0, 1.0, 0.0381, 0.0495, 0.2254,
+    1.0, 1.0, 1.0, 0.0246, 0.2774, 1.0,
     1.0)
-EXTENDED_NOISE_DOF: float = 4.14
+EXTENDED_NOISE_DOF: float = 3.82
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -118,8 +118,8 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A") + FLAT_ONLY_FEATURES
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0863, 0.0915, 1.0, 1.0, 1.0, 1.0,
-    0.2720)
+    0.0967, 0.1018, 1.0, 1.0, 1.0, 1.0,
+    0.1798)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -137,7 +137,7 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0226, 1.0, 1.0, 1.0, 1.0,
+    1.0, 0.0266, 1.0, 1.0, 1.0, 1.0,
     1.0)
 #: The features that veto between two looks the hand found smooth and curved
 #: (``MemoryConfig.curved_veto``: TC < ``flat_crease``, TK >= ``flat_curvature``, a
@@ -153,7 +153,7 @@ CURVED_VETO_FEATURES: tuple[str, ...] = ("AS",)
 EXTENDED_CURVED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 0.0407, 1.0, 1.0, 1.0,
+    1.0, 1.0, 0.0406, 1.0, 1.0, 1.0,
     1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
@@ -168,11 +168,11 @@ EXTENDED_CURVED_VETO: tuple[float, ...] = (
 #: distance, none with A alone; docs/memory.md, "The brightest grey between two creased
 #: looks".)
 CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A")
-#: The extended mode caps each feature's |z| at 5.5 in every distance (MemoryConfig.z_cap),
+#: The extended mode caps each feature's |z| at 6 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 5.5
+EXTENDED_Z_CAP: float = 6.0
 
 
 @dataclass(frozen=True)

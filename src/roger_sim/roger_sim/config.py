@@ -61,6 +61,10 @@ class SimConfig:
         probe_directions: Probe touches around the first touch of a haptic improvement
             (shape from touch), evenly spread directions from +x; 0: none.
         probe_radius_m: Horizontal distance of a probe touch from the first touch, metres.
+        probe_step_m: Each probe touch whose tactile image was pressed all over (the pad
+            lay on a top wider than itself, no rim under it) sends the later probes this
+            much farther out, towards the rim of a wide top, metres; 0: every probe at
+            ``probe_radius_m``.
         probe_rise_m: How far above the first touch the hand rises after a probe touch
             (it goes across once it is clear of the top, while still rising), metres.
         probe_depth_m: How far below the first touch a probe comes down before it counts
@@ -116,6 +120,7 @@ class SimConfig:
     weigh_steps: int = 24
     probe_directions: int = 3
     probe_radius_m: float = 0.04
+    probe_step_m: float = 0.025
     probe_rise_m: float = 0.03
     probe_depth_m: float = 0.08
     reach_slack_m: float = 0.03
@@ -178,6 +183,8 @@ class SimConfig:
                "in [0, 16]")
         _check("probe_radius_m", self.probe_radius_m, 0.0 < self.probe_radius_m <= 0.2,
                "in (0, 0.2] m")
+        _check("probe_step_m", self.probe_step_m, 0.0 <= self.probe_step_m <= 0.1,
+               "in [0, 0.1] m")
         _check("probe_rise_m", self.probe_rise_m, 0.0 < self.probe_rise_m <= 0.2,
                "in (0, 0.2] m")
         _check("probe_depth_m", self.probe_depth_m, 0.0 < self.probe_depth_m <= 0.5,

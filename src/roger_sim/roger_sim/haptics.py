@@ -164,6 +164,9 @@ class HapticRoutine:
         self._contacts: list[TactileContact] = []
         self._probes = probe_offsets(config)
         self._next_probe = 0
+        # Probe touches so far whose pad was pressed all over: the later probes go out
+        # ``probe_step_m`` farther for each.
+        self._pressed_all = 0
         self._probe = (0.0, 0.0)
         self._probe_planar: tuple[float, float] = (0.0, 0.0)
         # The lift height and step count when the probe's descent last made progress.
@@ -290,6 +293,8 @@ class HapticRoutine:
         while self._next_probe < len(self._probes):
             dx, dy = self._probes[self._next_probe]
             self._next_probe += 1
+            out = 1.0 + self._pressed_all * self.config.probe_step_m / self.config.probe_radius_m
+            dx, dy = dx * out, dy * out
             ik = arm_ik(self.arm, (cx + dx, cy + dy))
             # An unreachable probe is skipped.
             if ik is not None and self.servo.reachable(np.array([self._probe_height, *ik])):
@@ -390,6 +395,9 @@ class HapticRoutine:
                 # Recorded whatever body it is: a probe that lands on a neighbour of the
                 # first touch's object feels the same to a tactile sensor.
                 self._record(hit[1], hit[2], self._probe)
+                if self._contacts[-1].taxels and all(
+                        math.isfinite(v) for v in self._contacts[-1].image):
+                    self._pressed_all += 1
                 self._rise(q_arm)
                 return
         if self.phase in ("approach", "touch", "retouch"):
