@@ -302,13 +302,26 @@ def test_a_tactile_image_reads_a_flat_tops_rim_straight_or_round() -> None:
         # Each within the 2 mm taxels' staircase; their median within 15 %.
         assert np.median(rims) == pytest.approx(1.0 / radius, rel=0.15), (radius, rims)
         assert all(0.6 / radius < r < 1.4 / radius for r in rims), (radius, rims)
-    no_rim = {
-        "the whole pad on a top": touch(lambda x, y: -0.0005),
+    # A box's corner: two straight edges at a right angle, a polygon's rim, straight.
+    corners = {
         "a box's corner": touch(lambda x, y: -0.0005 if x < 0.004 and y < 0.004 else off),
         "a box's corner turned 45 degrees": touch(
             lambda x, y: -0.0005 if x > abs(y) - 0.012 else off),
         "a corner beyond the pad, its edges cutting two of the pad's corners": touch(
             lambda x, y: -0.0005 if x > abs(y) - 0.03 else off),
+        "a corner turned 20 degrees, off the centre": touch(
+            lambda x, y: -0.0005 if (0.94 * (x - 0.003) + 0.34 * (y + 0.004) < 0
+                                     and -0.34 * (x - 0.003) + 0.94 * (y + 0.004) < 0)
+            else off),
+    }
+    for what, contact in corners.items():
+        assert tactile_rim(contact) == 0.0, what
+    # Two straight edges not at a right angle (a prism's end seen flat would be 60
+    # degrees; no top here has one) are no corner, and no one curve either.
+    assert tactile_rim(touch(lambda x, y: -0.0005 if x > 0.58 * abs(y) - 0.01 else off)) \
+        is None
+    no_rim = {
+        "the whole pad on a top": touch(lambda x, y: -0.0005),
         "an edge too short to tell": touch(lambda x, y: -0.0005 if x + y > -0.024 else off),
         "a sphere's top": touch(lambda x, y: (x * x + y * y) / (2 * 0.05) - 0.0005),
         "a ridge": touch(lambda x, y: 1.7 * abs(x) - 0.0005),

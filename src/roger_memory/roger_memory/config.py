@@ -46,16 +46,16 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02678, 0.03959, 0.04797, 0.00524, 0.00584, 0.00549,
-    0.02984, 0.02600, 0.02482, 0.00463, 0.01064, 0.02796,
-    0.01759, 0.01382, 0.01976, 0.00125, 0.00541, 0.02554,
-    0.02205)
+    0.02678, 0.03961, 0.04799, 0.00524, 0.00585, 0.00549,
+    0.02985, 0.02601, 0.02483, 0.00463, 0.01064, 0.02797,
+    0.01759, 0.01382, 0.01977, 0.00125, 0.00542, 0.02555,
+    0.01951)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.532, 1.170, 0.991, 0.534, 0.437, 0.464,
-    0.389, 0.300, 0.051, 1.701, 3.057, 0.520,
-    1.298, 1.580, 1.424, 0.783, 0.100, 0.390,
-    2.280)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.50
+    1.519, 1.160, 0.983, 0.530, 0.433, 0.459,
+    0.386, 0.297, 0.050, 1.687, 3.032, 0.515,
+    1.287, 1.567, 1.412, 0.777, 0.097, 0.387,
+    2.422)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.52
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -96,10 +96,10 @@ NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATU
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0381, 0.0495, 0.2254,
-    1.0, 1.0, 1.0, 0.0246, 0.2774, 1.0,
+    1.0, 1.0, 1.0, 0.0385, 0.0495, 0.2255,
+    1.0, 1.0, 1.0, 0.0246, 0.2813, 1.0,
     1.0)
-EXTENDED_NOISE_DOF: float = 3.82
+EXTENDED_NOISE_DOF: float = 3.76
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -118,8 +118,8 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A") + FLAT_ONLY_FEATURES
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0967, 0.1018, 1.0, 1.0, 1.0, 1.0,
-    0.1798)
+    0.0968, 0.1018, 1.0, 1.0, 1.0, 1.0,
+    0.1641)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's

@@ -169,6 +169,14 @@ RIM_MIN_LENGTH_M: float = 0.03
 #: cylinder's rim within the staircase of 2 mm taxels (0.4-0.5 mm); a box's corner, two
 #: straight edges at right angles, does not.
 RIM_FIT_M: float = 0.0007
+#: A box's corner under the pad (``_right_corner``): two straight edges whose directions
+#: are a right angle apart within this (radians; a top's corner is 90 degrees exactly, the
+#: 2 mm taxels' staircase turns a short edge's direction by a few degrees)...
+CORNER_TOLERANCE_RAD: float = math.radians(15.0)
+#: ...each at least this long (metres)...
+CORNER_EDGE_M: float = 0.01
+#: ...and holding all but this share of the border's points between them.
+CORNER_OUTLIERS: float = 0.05
 #: TR is the rim's curvature (1/m) times this: a cylinder of 0.06-0.14 m reads 0.67-0.29, a
 #: straight edge 0.
 TR_SCALE_M: float = 0.02
@@ -423,9 +431,11 @@ def tactile_rim(contact: TactileContact) -> float | None:
     least. In the frame of its principal axes
     (u along it, v across) a parabola v = a + b u + c u^2 is fitted (least squares): the
     curvature is |2 c| (a circle of radius R reads 1 / R, a straight edge the noise of its
-    staircase of taxels). None for a box's corner: a border the parabola does not follow
-    within ``RIM_FIT_M`` RMS, or the skin beyond the top in two pieces (the corner beyond
-    the pad, its edges cutting two of the pad's corners).
+    staircase of taxels). A box's corner, two straight edges at a right angle
+    (``_right_corner``: inside the pad, or beyond it with its edges cutting two of the
+    pad's corners, the skin beyond then in two pieces), reads 0: a polygon's rim is
+    straight wherever it runs. None for any other border the parabola does not follow
+    within ``RIM_FIT_M`` RMS.
     """
     n = contact.taxels
     if n < 3 or contact.pitch <= 0.0:
@@ -441,7 +451,7 @@ def tactile_rim(contact: TactileContact) -> float | None:
     # over a corner, its two edges cutting two of the pad's corners).
     pieces = [cv2.connectedComponents(part.astype(np.uint8), connectivity=4)[0] - 1
               for part in (pressed, ~pressed)]
-    if pieces != [1, 1]:
+    if pieces[0] != 1 or pieces[1] not in (1, 2):
         return None
     # The border: midway between each pressed taxel and an unpressed neighbour in its row
     # or column (the pad's own border is no rim).
@@ -452,6 +462,12 @@ def tactile_rim(contact: TactileContact) -> float | None:
         np.stack([across_rows[1], across_rows[0] + 0.5], axis=1)]) * contact.pitch
     if len(rim) < RIM_MIN_TAXELS:
         return None
+    # A corner of a flat top: two straight edges at a right angle. Its rim is straight
+    # wherever it runs (a polygon's), though no one parabola follows it.
+    if _right_corner(rim, contact.pitch):
+        return 0.0
+    if pieces[1] != 1:
+        return None  # the skin beyond in two pieces and no corner: no one rim
     centre = rim.mean(axis=0)
     _, _, axes = np.linalg.svd(rim - centre, full_matrices=False)
     u, v = (rim - centre) @ axes[0], (rim - centre) @ axes[1]
@@ -459,8 +475,50 @@ def tactile_rim(contact: TactileContact) -> float | None:
         return None
     coef = np.polyfit(u, v, 2)
     if float(np.sqrt(np.mean((np.polyval(coef, u) - v) ** 2))) > RIM_FIT_M:
-        return None  # a corner: two straight edges no parabola follows
+        return None  # no one smooth curve, and no right corner either
     return float(abs(2.0 * coef[0]))
+
+
+def _best_line(points: np.ndarray, band: float) -> tuple[np.ndarray, float]:
+    """The straight line (angle of its normal every degree, offset anywhere) that holds the
+    most of ``points`` within ``band`` of it: (inliers mask, normal's angle in radians)."""
+    best, best_angle = np.zeros(len(points), bool), 0.0
+    for angle in np.radians(np.arange(0.0, 180.0, 1.0)):
+        proj = points @ np.array([math.cos(angle), math.sin(angle)])
+        order = np.sort(proj)
+        # For each point as the band's lower end, how many fall within 2 * band above it.
+        counts = np.searchsorted(order, order + 2.0 * band, side="right") - np.arange(
+            len(order))
+        k = int(np.argmax(counts))
+        if counts[k] > best.sum():
+            best = (proj >= order[k] - 1e-12) & (proj <= order[k] + 2.0 * band + 1e-12)
+            best_angle = float(angle)
+    return best, best_angle
+
+
+def _right_corner(rim: np.ndarray, pitch: float) -> bool:
+    """True when the rim's points lie on two straight lines (within half a taxel) that meet
+    at a right angle (within ``CORNER_TOLERANCE_RAD``), each at least ``CORNER_EDGE_M``
+    long and together all but ``CORNER_OUTLIERS`` of the points: a box's corner under the
+    pad (inside it, or beyond it with its two edges cutting two of the pad's corners). A
+    cylinder's rim never turns a right angle within the 4 cm pad so straightly (a 3 cm
+    radius sags 2.3 mm over a 45-degree arc)."""
+    band = 0.5 * pitch
+    first, a1 = _best_line(rim, band)
+    rest = rim[~first]
+    if len(rest) < 2:
+        return False
+    second, a2 = _best_line(rest, band)
+    if (first.sum() + second.sum()) < (1.0 - CORNER_OUTLIERS) * len(rim):
+        return False
+    turn = abs((a1 - a2 + math.pi / 2) % math.pi - math.pi / 2)  # in [0, pi / 2]
+    if abs(turn - math.pi / 2) > CORNER_TOLERANCE_RAD:
+        return False
+    for points, angle in ((rim[first], a1), (rest[second], a2)):
+        along = points @ np.array([-math.sin(angle), math.cos(angle)])
+        if len(points) < RIM_MIN_TAXELS // 2 or np.ptp(along) < CORNER_EDGE_M:
+            return False
+    return True
 
 
 def _unit_vector(v: Sequence[float]) -> np.ndarray:
