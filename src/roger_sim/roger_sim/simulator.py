@@ -186,6 +186,16 @@ class Simulator:
                 "render": self._retina.seconds + (self._fovea.seconds if self._fovea else 0.0)}
 
     @property
+    def fovea_retina(self) -> Retina | None:
+        """The fovea's renderer (the left eye's by default; any eye pose may be passed to
+        its ``render``), None without a fovea. For diagnosis (bench/fovea_stereo.py)."""
+        return self._fovea
+
+    def object_bodies(self) -> dict[str, int]:
+        """Object name -> pybullet body id, as the renderers' id images hold them."""
+        return dict(self._bodies)
+
+    @property
     def last_haptic(self) -> HapticReading | None:
         """Reading of the last goal if it was a haptic improvement, else None."""
         return self._last_haptic if self._last_goal_haptic else None
