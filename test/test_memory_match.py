@@ -346,10 +346,12 @@ def test_in_the_extended_mode_only_view_invariant_features_veto() -> None:
     # Each offset lies beyond the feature's old (one-look) veto: I1 0.148, S3 0.212,
     # O 0.564; W's and D's beyond their veto now (0.049, 0.0375). Alone each stays within
     # the acceptance distance.
-    # TC (a crease the probes can miss) never vetoes either; TK, measured on smooth
+    # TC (a crease the probes can miss) never vetoes by its difference either: a query
+    # that missed the address's crease passes (one found against none is another rule,
+    # test_a_crease_found_is_not_an_address_that_never_found_one); TK, measured on smooth
     # surfaces, does.
     for name, offset, vetoed in (("I1", 0.2, False), ("S3", 0.3, False), ("O", 0.6, False),
-                                 ("TC", 0.5, False), ("W", 0.053, True), ("D", 0.042, True),
+                                 ("TC", -0.35, False), ("W", 0.053, True), ("D", 0.042, True),
                                  ("TK", 0.3, True)):
         memory = AssociativeMemory(cfg, seed=3)
         memory.store(x, known)
@@ -427,6 +429,52 @@ def test_the_rims_curvature_vetoes_only_between_flat_tops() -> None:
     q = x.copy()
     q[r] = 0.15
     assert memory.decide(q, known, final_trial=True).vetoed is False
+
+
+def test_a_crease_found_is_not_an_address_that_never_found_one() -> None:
+    """One-sided (``crease_found_veto``): a query whose touches found a crease (a prism's
+    ridge) is turned down by an address none of whose looks found one, wherever the other
+    features put it; a query that found none is not turned down by an address that did
+    (its probes may have stayed on one flank), nor is any query by an address one of whose
+    looks found a crease or whose looks never measured one, nor a query whose pad lay flat
+    over a top's rim (TR known: a flat top's rim is a crease too)."""
+    cfg = MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    tc, tk, tr = names.index("TC"), names.index("TK"), names.index("TR")
+    known = np.ones(len(names), bool)
+    known[tr] = False  # a prism's top never lies flat under the pad
+    x = np.full(len(names), 0.4)
+    x[tk] = 0.0
+
+    def decide(stored: list[tuple[float, bool]], query_tc: float,
+               config: MemoryConfig = cfg, rim: bool = False) -> bool:
+        memory = AssociativeMemory(config, seed=3)
+        looks = []
+        for crease, measured in stored:
+            look, k = x.copy(), known.copy()
+            look[tc], k[tc] = crease, measured
+            looks.append((look, k))
+        # The earlier looks of one focus, then its store: the address holds them all.
+        for look, k in looks[:-1]:
+            memory.decide(look, k, focus_id=1)
+        address = memory.store(*looks[-1], focus_id=1)
+        assert len(memory.exemplars(address)) == len(looks)
+        q, k = x.copy(), known.copy()
+        q[tc] = query_tc
+        if rim:
+            k[tr] = True
+        return memory.decide(q, k, final_trial=True).vetoed
+
+    assert decide([(0.1, True)], 1.0) is True
+    assert decide([(0.1, True)], 1.0,
+                  dataclasses.replace(cfg, crease_found_veto=False)) is False
+    assert decide([(1.0, True)], 0.1) is False
+    assert decide([(0.1, True), (1.0, True)], 1.0) is False
+    assert decide([(0.1, False)], 1.0) is False
+    assert decide([(0.1, True)], 0.3) is False
+    assert decide([(0.1, True)], 1.0, rim=True) is False
+    # The paper mode has no TC: the rule has nothing to read there.
+    assert "TC" not in feature_names("paper")
 
 
 def _stored_then_asked(cfg: MemoryConfig, x: np.ndarray, q: np.ndarray, known: np.ndarray,

@@ -275,6 +275,14 @@ class MemoryConfig:
             look of the address compares with it is within every veto: the object was
             seen that way. False: its nearest look alone decides, even one that never
             measured the feature that would veto (before 2026-11-28).
+        crease_found_veto: A query whose touches found a crease (TC >= ``flat_crease``)
+            and felt no flat top's rim (TR unknown) is not an address none of whose looks
+            found one, though at least one of them measured TC (extended mode). One-sided:
+            a crease found is evidence of an edge (a ridge under the pad or two normals 45
+            degrees apart), none found is not evidence of none (the probes may stay on one
+            flank), so a query that found no crease is never vetoed by it. And a flat top's
+            rim is a crease too (a cylinder touched at the edge of reach, its probes over
+            the rim): a query whose pad lay flat over a rim (TR known) is not either.
         veto_rerun: After a veto, inhibit the vetoed winner and let the winner-take-all run
             again, once, over the units left; the next address wins if the veto lets it
             pass, with its share renormalised over the units left. False: a veto makes the
@@ -346,6 +354,10 @@ class MemoryConfig:
         "doc": "Smallest winner share for a non-final identification", "live": True})
     veto_any_look: bool = field(default=True, metadata={
         "doc": "An address passes the veto when one of its looks does (else its nearest)",
+        "live": True})
+    crease_found_veto: bool = field(default=True, metadata={
+        "doc": "A look that found a crease and no flat top is not an address none of whose "
+               "looks found one",
         "live": True})
     veto_rerun: bool = field(default=True, metadata={
         "doc": "After a veto, inhibit the vetoed winner and let the WTA run again, once",

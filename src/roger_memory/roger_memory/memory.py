@@ -25,7 +25,9 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
   flat-topped (``MemoryConfig.flat_veto``: a box's or cylinder's top) the fovea's outline
   O and the brightest grey A veto too, and between two whose outlines are both
   straight-edged (``straight_veto``: a box's top) A vetoes closer; elsewhere they vary
-  with the view and do not.
+  with the view and do not. A query whose touches found a crease, and no flat top's rim,
+  is turned down by an address none of whose looks found one (``crease_found_veto``;
+  one-sided: none found is no evidence of none).
 
 Each address holds several looks: the looks of the focus that stored it (the requests
 carry the focus id) and, later, looks of foci identified as it, added only when one of
@@ -186,6 +188,9 @@ class AssociativeMemory:
         self._crease_gate = ((names.index("TC"), config.flat_crease, unused)
                              if "TC" in names and unused.any() else None)
         self._network.set_crease_gate(*(self._crease_gate or (None, 0.0, None)))
+        # A crease found is not an address that never found one (crease_found_veto).
+        self._crease_found = ((names.index("TC"), names.index("TR")) if "TR" in names
+                              and config.crease_found_veto else None)
 
     def veto_between(self, features: np.ndarray, known: np.ndarray,
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
@@ -367,9 +372,18 @@ class AssociativeMemory:
         look. With ``veto_any_look`` the address passes when one of its looks that can
         answer the query (``d2`` finite) and compares every feature some look of the
         address compares with the query is within the veto in every common feature; else
-        its nearest look decides."""
+        its nearest look decides. With ``crease_found_veto`` a query that found a crease
+        and felt no flat top's rim (TR unknown) is turned down by an address none of
+        whose looks that measured TC found one."""
         mine = np.flatnonzero(self._addresses == address)
         nearest = mine[np.argmin(d2[mine])]
+        if self._crease_found is not None:
+            (tc, tr), full = self._crease_found, self._config.flat_crease
+            felt = mine[self._known[mine, tc]]
+            # A flat top's rim is a crease too: only a query that felt no flat top.
+            if (k[tc] and x[tc] >= full and not k[tr] and len(felt)
+                    and np.all(self._exemplars[felt, tc] < full)):
+                return True, float(np.sqrt(d2[nearest]))
         looks = [nearest]
         if self._config.veto_any_look:
             # Only a look that compares every feature some look of the address compares
