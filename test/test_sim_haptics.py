@@ -226,15 +226,20 @@ def test_the_tactile_array_feels_a_ridge_as_a_line_and_a_top_as_an_area(
         SimConfig(tactile_taxels=2)
 
 
-def test_the_probes_feel_a_cylinders_round_rim_and_a_boxs_straight_edge() -> None:
-    from roger_perception.shape import TR_SCALE_M, tactile_shape
-    size = 0.08
-    world = {"name": "rims", "objects": [
+def box_and_cylinder(size: float) -> dict:
+    """A world of a cylinder and a box (yaw 0.4) of one size, grey and weight, one
+    before each arm."""
+    return {"name": f"rims_{size}", "objects": [
         {"name": "cylinder", "shape": "cylinder", "position": [0.6, 0.3], "size": size,
          "intensity": 80, "weight": 0.5},
         {"name": "box", "shape": "box", "position": [0.6, -0.3], "yaw": 0.4, "size": size,
          "intensity": 80, "weight": 0.5}]}
-    readings = run_haptics(world, SimConfig())
+
+
+def test_the_probes_feel_a_cylinders_round_rim_and_a_boxs_straight_edge() -> None:
+    from roger_perception.shape import TR_SCALE_M, tactile_shape
+    size = 0.08
+    readings = run_haptics(box_and_cylinder(size), SimConfig())
     tr = {name: tactile_shape(r[1].contacts)[3] for name, r in readings.items()}
     # The 4 cm probes reach over a 8 cm top's rim: a circle of radius size / 2, or straight
     # (the staircase of the taxels only).
@@ -245,11 +250,7 @@ def test_the_probes_feel_a_cylinders_round_rim_and_a_boxs_straight_edge() -> Non
 def test_a_probe_pressed_all_over_sends_the_next_ones_out_to_a_wide_tops_rim() -> None:
     from roger_perception.shape import TR_SCALE_M, tactile_rim, tactile_shape
     size = 0.15
-    world = {"name": "wide", "objects": [
-        {"name": "cylinder", "shape": "cylinder", "position": [0.6, 0.3], "size": size,
-         "intensity": 80, "weight": 0.5},
-        {"name": "box", "shape": "box", "position": [0.6, -0.3], "yaw": 0.4, "size": size,
-         "intensity": 80, "weight": 0.5}]}
+    world = box_and_cylinder(size)
     fixed = run_haptics(world, SimConfig(probe_step_m=0.0))
     stepped = run_haptics(world, SimConfig())
     step = SimConfig().probe_step_m
