@@ -64,6 +64,8 @@ MAX_ROIS: int = 1024
 QUATERNION_TOLERANCE: float = 1e-3
 #: The fovea is the left eye's: same pose and optical axis, a narrower field.
 FOVEA_FRAME = LEFT_FRAME
+#: The right fovea is the right eye's.
+FOVEA_RIGHT_FRAME = RIGHT_FRAME
 
 
 def seconds_to_time(t: float) -> Time:
@@ -221,7 +223,8 @@ def stereo_geometry_msg(frame: StereoFrame, map_revision: int = 0) -> StereoGeom
         header=header(frame.stamp), goal_id=frame.goal_id,
         left_eye=eye_pose_msg(frame.left_pose), right_eye=eye_pose_msg(frame.right_pose),
         exposures=frame.exposures, map_revision=int(map_revision),
-        haptic=frame.haptic is not None, fovea=frame.fovea is not None)
+        haptic=frame.haptic is not None, fovea=frame.fovea is not None,
+        fovea_right=frame.fovea is not None and frame.fovea_right is not None)
 
 
 def poses_from_geometry(msg: StereoGeometry) -> tuple[EyePose, EyePose]:

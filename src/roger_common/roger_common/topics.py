@@ -25,6 +25,7 @@ LEFT_INFO = "/roger/left/camera_info"
 RIGHT_INFO = "/roger/right/camera_info"
 FOVEA_IMAGE = "/roger/fovea/image_raw"
 FOVEA_INFO = "/roger/fovea/camera_info"
+FOVEA_RIGHT_IMAGE = "/roger/fovea_right/image_raw"
 STEREO_GEOMETRY = "/roger/stereo_geometry"
 JOINT_STATES = "/roger/joint_states"
 TF = "/tf"
@@ -97,6 +98,9 @@ TOPICS: tuple[Topic, ...] = (
           per_cycle=False),
     Topic(FOVEA_INFO, "sensor_msgs/CameraInfo", "images", "sim",
           "perception", "the fovea's intrinsics", per_cycle=False),
+    Topic(FOVEA_RIGHT_IMAGE, "sensor_msgs/Image", "images", "sim", "perception",
+          "with the fovea: the right eye's (the same intrinsics), for depth layers",
+          per_cycle=False),
     Topic(STEREO_GEOMETRY, "roger_interfaces/StereoGeometry", "images", "sim",
           "perception, attention", "eye poses of each stereo pair (verging eyes)"),
     Topic(JOINT_STATES, "sensor_msgs/JointState", "reliable", "sim", "-",

@@ -284,6 +284,9 @@ class StereoFrame:
             its field at a higher resolution (``SimConfig.fovea_fov_deg``), float32 in
             [0, 1], same pose as ``left``, with its own pixel noise; None otherwise.
         fovea_camera: Intrinsics of ``fovea`` (None without one).
+        fovea_right: The right eye's fovea of the same look (same intrinsics, the right
+            eye's pose, its own pixel noise), when the simulator renders both
+            (``SimConfig.fovea_stereo``); None otherwise.
     """
 
     stamp: float
@@ -300,6 +303,7 @@ class StereoFrame:
     label_names: tuple[str, ...] = ()
     fovea: np.ndarray | None = None
     fovea_camera: CameraModel | None = None
+    fovea_right: np.ndarray | None = None
 
 
 @dataclass

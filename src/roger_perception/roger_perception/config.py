@@ -115,6 +115,12 @@ class PerceptionConfig:
             above it; ``roger_perception.behind``). Off by default: it costs a merge in
             a look at two shipped worlds and 4-6 % of perception's time, for visits on
             worlds with such objects (docs/perception.md, step 9).
+        fovea_layers: In the extended mode, part a fixated ROI where the two foveae of a
+            visual improvement see a layer behind the fixated object (an object in line
+            behind it, 5-30 cm farther, that the retinas cannot part), and keep the layer
+            by position to part the ROI in later frames too
+            (``roger_perception.fovea_layers``). Needs the simulator's
+            right fovea (its ``fovea_stereo``). The paper mode never parts a ROI so.
         motion_threshold: Change of a pixel's smoothed intensity, after Roger's own eye and
             neck motion is compensated, that counts as visual motion: half of
             ``fg_threshold``, since an object is at least that much brighter than the
@@ -177,6 +183,7 @@ class PerceptionConfig:
     notch_px: float = 1.5
     binocular_split: bool = True
     behind_split: bool = False
+    fovea_layers: bool = True
     motion_threshold: float = 0.03
     motion_blur_px: float = 1.0
     motion_min_evidence: float = 0.5

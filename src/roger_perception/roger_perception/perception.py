@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from roger_common.errors import MessageError
-from roger_common.geometry import project_point
+from roger_common.geometry import as_point, project_point
 from roger_common.types import (
     SHAPE_FEATURE_NAMES,
     SIZE_INDEX,
@@ -65,10 +65,11 @@ from roger_perception.fovea import (
     outline_feature,
     top_against_other,
 )
+from roger_perception.fovea_layers import Layers, layer_behind, project_layer
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
-from roger_perception.roi_finder import find_objects
-from roger_perception.segmentation import background_level, window_boxes
+from roger_perception.roi_finder import SeenObject, find_objects, raster_index
+from roger_perception.segmentation import background_level, blob_of, window_boxes
 from roger_perception.shape import (
     smoothed_grey,
     sphere_albedo,
@@ -108,6 +109,8 @@ class Perception:
                               for s in self.config.log_sigmas]
         self.haptic_memory = HapticMemory(self.config.haptic_radius_m)
         self.fovea_looks = FoveaLooks(self.config.haptic_radius_m)
+        #: Layers behind fixated ROIs the two foveae found (``fovea_layers``), by position.
+        self.layers = Layers(self.config.haptic_radius_m)
         #: The last fovea's steps (``fovea.fovea_steps``), computed once for its ROIs.
         self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
         #: The last left retina and its three-pixel row means (``shape.smoothed_grey``), for A.
@@ -141,6 +144,7 @@ class Perception:
         """Forget haptic readings, the previous frame and the last visual buffer."""
         self.haptic_memory.clear()
         self.fovea_looks.clear()
+        self.layers.clear()
         self._previous_view = None
         self._last_log = ([], [])
         self.last_roi_labels = np.zeros((0, 0), np.int32)
@@ -175,6 +179,8 @@ class Perception:
         if cfg.border_margin_px > 0:
             size = (frame.camera.width, frame.camera.height)
             seen = [o for o in seen if not _near_border(o.blob.bbox, size, cfg.border_margin_px)]
+        if cfg.fovea_layers and cfg.feature_mode is FeatureMode.EXTENDED:
+            seen = self._part_layers(frame, seen)
         f = fundamental_matrix(frame.camera, frame.left_pose, frame.right_pose)
         t3 = time.perf_counter()
         timings["match"] = t3 - t2
@@ -284,6 +290,49 @@ class Perception:
         return rois
 
 
+    def _part_layers(self, frame: StereoFrame, seen: list[SeenObject]) -> list[SeenObject]:
+        """Part ROIs where a layer behind was found (``fovea_layers``): first the fixated
+        ROI on a look with both foveae (the layer found, or none, is kept by the ROI's
+        position), then every ROI near a kept layer's position whose pixels the layer's
+        points fall on. Returns the objects in left-retina raster order."""
+        cfg = self.config
+        camera = frame.camera
+        if (frame.fovea is not None and frame.fovea_right is not None
+                and frame.fovea_camera is not None):
+            for obj in seen:
+                if obj.cut or not fixated(obj.blob.mask, obj.blob.bbox, camera):
+                    continue
+                layer = layer_behind(frame.fovea, frame.fovea_right, frame.fovea_camera,
+                                     camera, frame.left_pose, frame.right_pose,
+                                     obj.blob.mask, obj.blob.bbox, obj.depth,
+                                     obj.width_px * obj.depth / camera.focal_px,
+                                     cfg.min_roi_pixels)
+                self.layers.put(obj.position, layer)
+        if not len(self.layers):
+            return seen
+        out: list[SeenObject] = []
+        bg: float | None = None
+        for obj in seen:
+            far = None
+            if not obj.cut:
+                for layer in self.layers.near(obj.position):
+                    far = project_layer(layer.points, camera, frame.left_pose, obj.blob.mask,
+                                        obj.blob.bbox, cfg.min_roi_pixels)
+                    if far is not None:
+                        depths = (layer.points - frame.left_pose.position) \
+                            @ frame.left_pose.rotation[:, 2]
+                        far_depth = float(np.median(depths))
+                        break
+            if far is None:
+                out.append(obj)
+                continue
+            if bg is None:
+                bg = background_level(frame.left)
+            out.append(_part(obj, obj.blob.mask & ~far, obj.depth, frame, bg))
+            out.append(_part(obj, far, far_depth, frame, bg))
+        out.sort(key=lambda o: raster_index(o.blob, camera.width))
+        return out
+
     def _extend(self, feats: np.ndarray, known: np.ndarray, frame: StereoFrame, blob: Any,
                 position: tuple[float, float, float], labels: np.ndarray,
                 own: int) -> tuple[np.ndarray, np.ndarray]:
@@ -345,6 +394,28 @@ class Perception:
             extra_known[-len(touch):] = np.isfinite(values)
         return (np.concatenate([feats, extra]).astype(np.float32),
                 np.concatenate([known, extra_known]))
+
+
+def _part(obj: SeenObject, mask: np.ndarray, depth: float, frame: StereoFrame, bg: float
+          ) -> SeenObject:
+    """The part ``mask`` (within ``obj``'s bbox) of a parted object, placed at ``depth``
+    on the ray through its own centroid, as ``roi_finder`` places an object."""
+    rows, cols = np.nonzero(mask)
+    u0, v0 = obj.blob.bbox[0], obj.blob.bbox[1]
+    box = (v0 + int(rows.min()), u0 + int(cols.min()), v0 + int(rows.max()) + 1,
+           u0 + int(cols.max()) + 1)
+    labels = np.zeros(frame.left.shape, np.int32)
+    labels[v0:v0 + mask.shape[0], u0:u0 + mask.shape[1]][mask] = 1
+    blob = blob_of(labels, 1, frame.left, bg, box)
+    cu, cv = blob.centroid
+    cam = frame.camera
+    ray = np.array([(cu - cam.width / 2.0) / cam.focal_px, (cv - cam.height / 2.0) / cam.focal_px,
+                    1.0])
+    position = as_point(frame.left_pose.position + frame.left_pose.rotation @ (ray * depth))
+    ur, vr, _ = project_point(cam, frame.right_pose, position)
+    return SeenObject(blob=blob, depth=float(depth), position=position, centre_px=(cu, cv),
+                      right_px=(ur, vr), width_px=float(blob.width_px), cut=obj.cut,
+                      cost=obj.cost)
 
 
 @dataclass(frozen=True)

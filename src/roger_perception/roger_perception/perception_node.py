@@ -74,7 +74,8 @@ class PerceptionNode(Node):
                                  ("geometry", StereoGeometry, topics.STEREO_GEOMETRY),
                                  ("info", CameraInfo, topics.LEFT_INFO),
                                  ("fovea", Image, topics.FOVEA_IMAGE),
-                                 ("fovea_info", CameraInfo, topics.FOVEA_INFO)):
+                                 ("fovea_info", CameraInfo, topics.FOVEA_INFO),
+                                 ("fovea_right", Image, topics.FOVEA_RIGHT_IMAGE)):
             self.create_subscription(cls, topic, self._part_of(kind, topic), IMAGES)
         self.create_subscription(HapticReadingMsg, topics.HAPTIC, self.on_haptic, RELIABLE)
         self.create_subscription(SpatialMap, topics.SPATIAL_MAP, self.on_map, LATCHED)
@@ -164,7 +165,7 @@ class PerceptionNode(Node):
                                 "it again")
             return
         stamp = common.time_to_seconds(geometry.header.stamp)
-        fovea, fovea_camera = None, None
+        fovea, fovea_camera, fovea_right = None, None, None
         if geometry.fovea:
             try:
                 fovea_camera = common.camera_from_info(parts["fovea_info"])
@@ -172,14 +173,19 @@ class PerceptionNode(Node):
                 if fovea.shape != (fovea_camera.height, fovea_camera.width):
                     raise MessageError(f"foveal image size {fovea.shape} does not match its "
                                        f"camera ({fovea_camera.height}, {fovea_camera.width})")
+                if geometry.fovea_right:
+                    fovea_right = common.image_to_array(parts["fovea_right"])
+                    if fovea_right.shape != fovea.shape:
+                        raise MessageError(f"right foveal image size {fovea_right.shape} "
+                                           f"does not match the left one's {fovea.shape}")
             except MessageError as exc:
                 self.get_logger().warn(f"fovea of goal {geometry.goal_id} dropped: {exc}")
-                fovea, fovea_camera = None, None
+                fovea, fovea_camera, fovea_right = None, None, None
         frame = StereoFrame(stamp=stamp, goal_id=int(geometry.goal_id), left=left, right=right,
                             camera=camera, left_pose=left_pose, right_pose=right_pose,
                             exposures=int(geometry.exposures),
                             haptic=self._haptic.pop(int(geometry.goal_id), None),
-                            fovea=fovea, fovea_camera=fovea_camera)
+                            fovea=fovea, fovea_camera=fovea_camera, fovea_right=fovea_right)
         rois = self.perception.process(frame, self._mapped)
         self.pub_rois.publish(common.rois_to_msg(rois, stamp, frame.goal_id,
                                                  self.perception.config.features))
@@ -192,17 +198,23 @@ class PerceptionNode(Node):
 
 def _complete(parts: dict[str, Any]) -> bool:
     """A stereo pair has its two images, camera info and geometry, and, when the geometry
-    says a fovea belongs to it, the foveal image and its camera info."""
+    says a fovea belongs to it, the foveal image and its camera info (and the right eye's
+    foveal image when it says that one does too)."""
     if not {"left", "right", "geometry", "info"} <= parts.keys():
         return False
-    return not parts["geometry"].fovea or {"fovea", "fovea_info"} <= parts.keys()
+    geometry = parts["geometry"]
+    if not geometry.fovea:
+        return True
+    want = {"fovea", "fovea_info"} | ({"fovea_right"} if geometry.fovea_right else set())
+    return want <= parts.keys()
 
 
 #: What each part of a stereo pair must pass on its own (roger_common.conversions).
 _CHECKS: dict[str, Callable[[Any], object]] = {
     "left": common.image_to_array, "right": common.image_to_array,
     "info": common.camera_from_info, "geometry": common.poses_from_geometry,
-    "fovea": common.image_to_array, "fovea_info": common.camera_from_info}
+    "fovea": common.image_to_array, "fovea_info": common.camera_from_info,
+    "fovea_right": common.image_to_array}
 
 
 def main(args: list[str] | None = None) -> None:

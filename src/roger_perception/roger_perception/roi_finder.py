@@ -172,10 +172,10 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
                 cap_curve, _ = sampled.curve(cap_blob.mask, cap_blob.bbox[1], cap_blob.bbox[0])
                 cap_depth, cap_cost, _ = best_depths(cap_curve[:, None], sweep.inverse_depths)
                 if cap_cost[0] <= cfg.max_match_cost:
-                    objects.append((_raster(cap_blob, width),
+                    objects.append((raster_index(cap_blob, width),
                                     _place(cap_blob, float(cap_depth[0]), float(cap_cost[0]),
                                            sweep, width)))
-        objects.append((_raster(blob, width), seen))
+        objects.append((raster_index(blob, width), seen))
     objects.sort(key=lambda x: x[0])
     out = [o for _, o in objects]
     labels = np.zeros(frag.shape, np.int32)
@@ -185,7 +185,7 @@ def find_objects(frame: StereoFrame, cfg: PerceptionConfig) -> tuple[list[SeenOb
     return out, labels
 
 
-def _raster(blob: Blob, width: int) -> int:
+def raster_index(blob: Blob, width: int) -> int:
     """Raster index of a blob's first pixel in a retina ``width`` pixels wide."""
     first = int(np.flatnonzero(blob.mask.ravel())[0])
     return (blob.bbox[1] + first // blob.mask.shape[1]) * width + (

@@ -35,6 +35,10 @@ class SimConfig:
             ``fovea_size`` pixels (with ``improve_exposures``' noise), as primate and iCub
             eyes have a fovea. 0: no fovea. The extended features' O is measured on it.
         fovea_size: Width and height of the foveal image in pixels.
+        fovea_stereo: Render the right eye's fovea too, with the left one (its own pixel
+            noise): perception parts an object standing in line behind the fixated one by
+            the two foveae's disparity (``roger_perception.fovea_layers``). False: the left
+            fovea alone, as before.
         realtime: Sleep so that simulated time follows wall-clock time (for watching).
         gui: Open pybullet's own window instead of the headless DIRECT client.
         light_ambient: Phong ambient coefficient of the TinyRenderer.
@@ -97,6 +101,7 @@ class SimConfig:
     improve_exposures: int = 4
     fovea_fov_deg: float = 30.0
     fovea_size: int = 192
+    fovea_stereo: bool = True
     realtime: bool = field(default=False, metadata={"live": True})
     gui: bool = False
     light_ambient: float = 0.6

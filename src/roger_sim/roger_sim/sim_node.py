@@ -95,6 +95,7 @@ class SimNode(Node):
         self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO,
                                                     IMAGES)
         self.pub_fovea = self.create_publisher(Image, topics.FOVEA_IMAGE, IMAGES)
+        self.pub_fovea_right = self.create_publisher(Image, topics.FOVEA_RIGHT_IMAGE, IMAGES)
         self.pub_fovea_info = self.create_publisher(CameraInfo, topics.FOVEA_INFO,
                                                     IMAGES)
         self.pub_geometry = self.create_publisher(StereoGeometry, topics.STEREO_GEOMETRY,
@@ -193,6 +194,9 @@ class SimNode(Node):
             self.pub_fovea_info.publish(common.camera_info_msg(
                 frame.fovea_camera, stamp, common.FOVEA_FRAME, 0.0, right=False))
             self.pub_fovea.publish(common.image_msg(frame.fovea, stamp, common.FOVEA_FRAME))
+            if frame.fovea_right is not None:
+                self.pub_fovea_right.publish(common.image_msg(frame.fovea_right, stamp,
+                                                              common.FOVEA_RIGHT_FRAME))
         self.pub_geometry.publish(common.stereo_geometry_msg(frame, self._map_revision))
         self.pub_left.publish(common.image_msg(frame.left, stamp, common.LEFT_FRAME))
         self.pub_right.publish(common.image_msg(frame.right, stamp, common.RIGHT_FRAME))

@@ -133,6 +133,8 @@ class Simulator:
                                                      image_size=cfg.fovea_size),
                               world.light_direction) if cfg.fovea_fov_deg > 0 else None)
         self._fovea_rng = self._rngs.child("fovea")
+        # The right fovea's noise has a stream of its own: the left fovea's stays as it was.
+        self._fovea_right_rng = self._rngs.child("fovea_right")
         self._applied = np.zeros(len(self._names))
         self._steps = start_steps
         self._last_haptic: HapticReading | None = None
@@ -404,7 +406,8 @@ class Simulator:
             exposures: Renders integrated; the scene is static while rendering, so this
                 is one render with pixel noise of std ``pixel_noise / sqrt(exposures)``.
             fovea: Also render the left eye's fovea (``SimConfig.fovea_fov_deg``; nothing
-                when that is 0), with the same exposures.
+                when that is 0), with the same exposures, and the right eye's with it
+                (``SimConfig.fovea_stereo``).
         """
         if not isinstance(exposures, int) or exposures < 1:
             raise ValueError(f"exposures must be an integer >= 1, got {exposures!r}")
@@ -422,20 +425,26 @@ class Simulator:
             # One table lookup per pixel (body id + 1 -> label; -1, the sky, -> -1) instead
             # of one pass over the image per object.
             labels[side] = lut[np.where((ids >= -1) & (ids < len(lut) - 1), ids + 1, 0)]
-        fovea_image, fovea_camera = None, None
+        fovea_image, fovea_camera, fovea_right = None, None, None
         if fovea and self._fovea is not None:
             fovea_camera = self._fovea.camera
             fovea_image, _ = self._fovea.render(poses["left"])
             if sigma > 0:
                 noise = self._fovea_rng.normal(0.0, sigma, fovea_image.shape).astype(np.float32)
                 fovea_image = np.clip(fovea_image + noise, 0.0, 1.0, dtype=np.float32)
+            if self.config.fovea_stereo:
+                fovea_right, _ = self._fovea.render(poses["right"])
+                if sigma > 0:
+                    shape = fovea_right.shape
+                    noise = self._fovea_right_rng.normal(0.0, sigma, shape).astype(np.float32)
+                    fovea_right = np.clip(fovea_right + noise, 0.0, 1.0, dtype=np.float32)
         return StereoFrame(stamp=self.sim_time, goal_id=goal_id, left=images["left"],
                            right=images["right"], camera=self.camera,
                            left_pose=poses["left"], right_pose=poses["right"],
                            exposures=exposures, haptic=self.last_haptic,
                            left_labels=labels["left"], right_labels=labels["right"],
                            label_names=label_names, fovea=fovea_image,
-                           fovea_camera=fovea_camera)
+                           fovea_camera=fovea_camera, fovea_right=fovea_right)
 
     def _labels_lut(self) -> np.ndarray:
         """Table from pybullet body id + 1 to label index (-1 for the sky and the robot)."""

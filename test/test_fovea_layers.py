@@ -1,0 +1,165 @@
+"""An object in line behind the fixated one, parted from it by the two foveae's disparity
+(roger_perception/fovea_layers.py, docs/perception.md "An object in line behind, parted in
+the fovea")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from roger_common.conversions import stereo_geometry_msg
+from roger_common.types import Action, CameraModel, EyePose, Goal, ObjectSpec, WorldSpec
+from roger_experiments.evaluation import object_under_window
+from roger_perception.config import PerceptionConfig
+from roger_perception.fovea_layers import Layer, Layers, layer_behind, project_layer
+from roger_perception.perception import Perception
+from roger_perception.perception_node import _complete
+from roger_perception.roi_finder import find_objects
+from roger_sim.config import SimConfig
+from roger_sim.simulator import Simulator
+
+#: A 0.08 m prism standing 15 cm behind a 0.10 m cylinder, within 2 degrees of its bearing
+#: from the eyes: the retinas see one object (a random world's pair that the closed loop
+#: never visited).
+NEAR = ObjectSpec("near", "cylinder", (0.703, -0.477), 0.10, 65.0, 0.8, yaw=1.57)
+FAR = ObjectSpec("far", "prism", (0.824, -0.563), 0.08, 109.0, 0.4)
+PAIR = WorldSpec((NEAR, FAR))
+
+
+def _look(world: WorldSpec, at: tuple[float, float], seed: int = 0,
+          config: SimConfig | None = None):
+    """A shift to ``at`` and a visual improvement there: the improvement's frame."""
+    with Simulator(world, config or SimConfig(), seed=seed) as sim:
+        target = (at[0], at[1], 0.05)
+        sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
+        return sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))[1]
+
+
+def _fixated_layer(frame):
+    seen, _ = find_objects(frame, PerceptionConfig())
+    from roger_perception.fovea import fixated
+    (obj,) = [o for o in seen if fixated(o.blob.mask, o.blob.bbox, frame.camera)]
+    layer = layer_behind(frame.fovea, frame.fovea_right, frame.fovea_camera, frame.camera,
+                         frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
+                         obj.depth, obj.width_px * obj.depth / frame.camera.focal_px, 12)
+    return obj, layer
+
+
+def _names(frame, obj, mask) -> dict[str, int]:
+    u0, v0, u1, v1 = obj.blob.bbox
+    labels = frame.left_labels[v0:v1, u0:u1][mask]
+    return {frame.label_names[i]: int((labels == i).sum()) for i in set(labels.tolist())
+            if i >= 0}
+
+
+def test_the_simulator_renders_the_right_fovea_with_its_own_noise() -> None:
+    on = _look(PAIR, NEAR.position)
+    off = _look(PAIR, NEAR.position, config=SimConfig(fovea_stereo=False))
+    assert on.fovea_right is not None and off.fovea_right is None
+    assert on.fovea_right.shape == on.fovea.shape
+    # The left fovea and the retinas are the same with or without the right fovea.
+    assert np.array_equal(on.fovea, off.fovea) and np.array_equal(on.left, off.left)
+    assert not np.array_equal(on.fovea_right, on.fovea)
+    msg = stereo_geometry_msg(on)
+    assert msg.fovea and msg.fovea_right
+    assert not stereo_geometry_msg(off).fovea_right
+
+
+def test_perception_waits_for_the_right_fovea_only_when_the_pair_says_it_has_one() -> None:
+    frame = _look(PAIR, NEAR.position)
+    geometry = stereo_geometry_msg(frame)
+    parts = {"left": 0, "right": 0, "info": 0, "fovea": 0, "fovea_info": 0,
+             "geometry": geometry}
+    assert not _complete(parts)
+    assert _complete({**parts, "fovea_right": 0})
+    geometry.fovea_right = False
+    assert _complete(parts)
+
+
+@pytest.mark.parametrize("fixate", [NEAR, FAR])
+def test_the_layer_behind_is_the_far_objects_top(fixate: ObjectSpec) -> None:
+    frame = _look(PAIR, fixate.position)
+    obj, layer = _fixated_layer(frame)
+    assert {"near", "far"} <= _names(frame, obj, obj.blob.mask).keys()  # one ROI for both
+    assert layer is not None
+    names = _names(frame, obj, layer.mask)
+    # Most of the layer is the far object's, and most of the far object's pixels are in it.
+    assert names.get("far", 0) >= 2 * names.get("near", 0)
+    assert names["far"] >= 0.5 * _names(frame, obj, obj.blob.mask)["far"]
+    assert layer.depth > obj.depth + 0.05
+    # Its points stand above the ground, around the far object's place.
+    centre = np.median(layer.points, axis=0)
+    assert np.hypot(centre[0] - FAR.position[0], centre[1] - FAR.position[1]) < 0.08
+    assert (layer.points[:, 2] > 0.02).all()
+
+
+@pytest.mark.parametrize("spec", [
+    ObjectSpec("box45", "box", (0.62, -0.2), 0.2, 110.0, 1.0, yaw=0.785),
+    ObjectSpec("box_near", "box", (0.82, 0.0), 0.2, 110.0, 1.0),
+    ObjectSpec("checker", "box", (0.613, -0.514), 0.2, 110.0, 1.0, yaw=-0.3,
+               texture="checker"),
+    ObjectSpec("sphere", "sphere", (0.7, 0.3), 0.16, 70.0, 0.8),
+    ObjectSpec("prism", "prism", (0.75, -0.35), 0.2, 60.0, 0.6, yaw=0.4),
+])
+def test_an_object_alone_has_no_layer_behind(spec: ObjectSpec) -> None:
+    """Its own far side (a box turned to the eye, a big box near it, a periodic texture)
+    and the ground just beyond its top edge are not another object."""
+    frame = _look(WorldSpec((spec,)), spec.position)
+    _, layer = _fixated_layer(frame)
+    assert layer is None
+
+
+def test_the_far_object_gets_a_roi_and_a_window_of_its_own_in_later_frames_too() -> None:
+    """Extended mode: the fixated ROI is parted on the look with both foveae, and the kept
+    layer parts it again in a later frame from another view (no fovea); the paper mode
+    never parts it."""
+    cfg = SimConfig()
+    for mode, parted in (("extended", True), ("paper", False)):
+        perception = Perception(PerceptionConfig(features=mode))
+        with Simulator(PAIR, cfg, seed=1) as sim:
+            target = (NEAR.position[0], NEAR.position[1], 0.05)
+            sim.run_goal(Goal(1, Action.ATTENTION_SHIFT, target))
+            _, look = sim.run_goal(Goal(2, Action.VISUAL_IMPROVEMENT, target))
+            rois = perception.process(look)
+            _, later = sim.run_goal(Goal(3, Action.ATTENTION_SHIFT,
+                                         (FAR.position[0], FAR.position[1], 0.05)))
+            rois_later = perception.process(later)
+        for frame, found in ((look, rois), (later, rois_later)):
+            shown = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
+                     for r in found]
+            assert ("far" in shown) is parted, (mode, shown)
+            assert "near" in shown or not parted
+        if parted:
+            (far,) = [r for r in rois_later if object_under_window(
+                later.left_labels, later.label_names, r.bbox) == "far"]
+            assert np.hypot(far.position[0] - FAR.position[0],
+                            far.position[1] - FAR.position[1]) < 0.08
+
+
+def test_layers_are_kept_by_position_and_forgotten_by_a_look_that_finds_none() -> None:
+    layers = Layers(radius=0.08)
+    layer = Layer(mask=np.ones((2, 2), bool), points=np.zeros((1, 3)), depth=1.0, samples=30)
+    layers.put((0.5, 0.2, 0.05), layer)
+    assert layers.near((0.52, 0.21, 0.0)) == [layer] and layers.near((0.7, 0.2, 0.0)) == []
+    layers.put((0.51, 0.2, 0.05), layer)  # the same ROI: replaced, not added
+    assert len(layers) == 1
+    layers.put((0.5, 0.19, 0.05), None)
+    assert len(layers) == 0
+
+
+def test_a_kept_layer_falls_on_the_pixels_its_points_project_to() -> None:
+    camera = CameraModel(width=64, height=64, focal_px=50.0)
+    pose = EyePose(position=np.zeros(3), rotation=np.eye(3))
+    mask = np.ones((20, 20), bool)
+    # Points 1 m ahead covering pixels (u, v) 30..34 x 20..23 of the image.
+    us, vs = np.meshgrid(np.arange(30, 35) + 0.5, np.arange(20, 24) + 0.5)
+    pts = np.stack([(us.ravel() - 32) / 50.0, (vs.ravel() - 32) / 50.0,
+                    np.ones(us.size)], axis=1)
+    far = project_layer(pts, camera, pose, mask, (20, 15, 40, 35), 12)
+    assert far is not None
+    rows, cols = np.nonzero(far)
+    assert (rows.min(), rows.max(), cols.min(), cols.max()) == (5, 8, 10, 14)
+    # Too few pixels, or none left to the nearer object: no layer.
+    assert project_layer(pts[:3], camera, pose, mask, (20, 15, 40, 35), 12) is None
+    assert project_layer(pts, camera, pose, np.ones((4, 5), bool), (30, 20, 35, 24),
+                         12) is None
