@@ -120,6 +120,7 @@ Pure numpy; no ROS.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -337,6 +338,11 @@ def tactile_shape(contacts: Sequence[TactileContact]
     return touch_shape([contacts])
 
 
+#: Touches whose tactile ridge and rim are kept (``tactile_ridge``, ``tactile_rim``): the
+#: last readings' of a few dozen objects.
+TOUCH_CACHE: int = 256
+
+
 def touch_shape(readings: Sequence[Sequence[TactileContact]]
                 ) -> tuple[float, float, float, float] | None:
     """TH, TK, TC and TR of one object from the touches of one or more haptic readings.
@@ -388,6 +394,7 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
             _unit(curvature * TK_SCALE_M * smooth_share), crease, rim)
 
 
+@functools.lru_cache(maxsize=TOUCH_CACHE)
 def tactile_ridge(contact: TactileContact) -> bool:
     """True when the touch's tactile image shows a ridge under the pad: the pressed taxels
     lie along a line (``RIDGE_WIDTH_M`` wide at most, ``RIDGE_LENGTH_M`` long at least)
@@ -420,6 +427,7 @@ def tactile_ridge(contact: TactileContact) -> bool:
                 and np.sum(beside & (across > a_in.max() + margin)) >= need)
 
 
+@functools.lru_cache(maxsize=TOUCH_CACHE)
 def tactile_rim(contact: TactileContact) -> float | None:
     """The curvature (1/m, unsigned) of a flat top's rim under the pad, from the touch's
     tactile image; None where the image shows no rim of a flat top.
@@ -436,6 +444,10 @@ def tactile_rim(contact: TactileContact) -> float | None:
     pad's corners, the skin beyond then in two pieces), reads 0: a polygon's rim is
     straight wherever it runs. None for any other border the parabola does not follow
     within ``RIM_FIT_M`` RMS.
+
+    Cached per contact (``TOUCH_CACHE``; a contact is frozen and the result a function of
+    it alone): ``HapticMemory`` pools an object's last readings again whenever one is
+    added, and the corner test costs milliseconds a touch.
     """
     n = contact.taxels
     if n < 3 or contact.pitch <= 0.0:
