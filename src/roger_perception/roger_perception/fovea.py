@@ -125,6 +125,40 @@ def top_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMode
     return edge_outline(fovea, fovea_camera, camera, mask, bbox, steps)
 
 
+def silhouette_in_fovea(mask: np.ndarray, bbox: tuple[int, int, int, int],
+                        camera: CameraModel, fovea_camera: CameraModel, margin: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A ROI's left-retina silhouette mapped into the fovea (same pose and optical axis;
+    only the focal length differs), and for every fovea column and row its retina column
+    and row.
+
+    Args:
+        mask, bbox: The silhouette inside ``bbox`` (u0, v0, u1, v1; u1/v1 exclusive).
+        margin: The box must lie this many fovea pixels inside the fovea's border.
+
+    Returns:
+        (sil, ui, vi): sil (Hf, Wf) bool; ui, vi the retina column of each fovea column and
+        the retina row of each fovea row, relative to ``bbox`` (may fall outside it). None
+        when the box is not wholly inside the fovea, ``margin`` off its border.
+    """
+    m = fovea_camera.focal_px / camera.focal_px
+    hf, wf = fovea_camera.height, fovea_camera.width
+    uf0 = (bbox[0] - camera.width / 2.0) * m + wf / 2.0
+    uf1 = (bbox[2] - camera.width / 2.0) * m + wf / 2.0
+    vf0 = (bbox[1] - camera.height / 2.0) * m + hf / 2.0
+    vf1 = (bbox[3] - camera.height / 2.0) * m + hf / 2.0
+    if uf0 < margin or vf0 < margin or uf1 > wf - margin or vf1 > hf - margin:
+        return None
+    uc = (np.arange(wf) + 0.5 - wf / 2.0) / m + camera.width / 2.0
+    vc = (np.arange(hf) + 0.5 - hf / 2.0) / m + camera.height / 2.0
+    ui, vi = np.floor(uc).astype(int) - bbox[0], np.floor(vc).astype(int) - bbox[1]
+    in_u = (ui >= 0) & (ui < mask.shape[1])
+    in_v = (vi >= 0) & (vi < mask.shape[0])
+    sil = np.zeros((hf, wf), bool)
+    sil[np.ix_(in_v, in_u)] = mask[np.ix_(vi[in_v], ui[in_u])]
+    return sil, ui, vi
+
+
 def edge_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraModel,
                  mask: np.ndarray, bbox: tuple[int, int, int, int],
                  steps: tuple[np.ndarray, float] | None = None, bottom: bool = False,
@@ -147,21 +181,11 @@ def edge_outline(fovea: np.ndarray, fovea_camera: CameraModel, camera: CameraMod
         columns show a clear edge.
     """
     m = fovea_camera.focal_px / camera.focal_px
-    hf, wf = fovea.shape
-    # The whole silhouette (its box) must lie inside the fovea, off its border.
-    uf0 = (bbox[0] - camera.width / 2.0) * m + wf / 2.0
-    uf1 = (bbox[2] - camera.width / 2.0) * m + wf / 2.0
-    vf0 = (bbox[1] - camera.height / 2.0) * m + hf / 2.0
-    vf1 = (bbox[3] - camera.height / 2.0) * m + hf / 2.0
-    if uf0 < 1.0 or vf0 < 1.0 or uf1 > wf - 1.0 or vf1 > hf - 1.0:
+    mapped = silhouette_in_fovea(mask, bbox, camera, fovea_camera, margin=1.0)
+    if mapped is None:
         return None
-    uc = (np.arange(wf) + 0.5 - wf / 2.0) / m + camera.width / 2.0
-    vc = (np.arange(hf) + 0.5 - hf / 2.0) / m + camera.height / 2.0
-    ui, vi = np.floor(uc).astype(int) - bbox[0], np.floor(vc).astype(int) - bbox[1]
-    in_u = (ui >= 0) & (ui < mask.shape[1])
-    in_v = (vi >= 0) & (vi < mask.shape[0])
-    sil = np.zeros((hf, wf), bool)
-    sil[np.ix_(in_v, in_u)] = mask[np.ix_(vi[in_v], ui[in_u])]
+    sil = mapped[0]
+    hf = sil.shape[0]
     if not sil.any():
         return None
     cols = np.flatnonzero(sil.any(axis=0))

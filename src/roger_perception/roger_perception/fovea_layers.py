@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 
 from roger_common.types import CameraModel, EyePose
+from roger_perception.fovea import silhouette_in_fovea
 
 #: Half-width of the matched windows, fovea pixels (7 x 7).
 HALF: int = 3
@@ -90,34 +91,6 @@ class Layer:
     points: np.ndarray
     depth: float
     samples: int
-
-
-def silhouette_in_fovea(mask: np.ndarray, bbox: tuple[int, int, int, int],
-                        camera: CameraModel, fovea_camera: CameraModel
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The ROI's silhouette in the fovea, and for every fovea pixel its retina pixel.
-
-    Returns:
-        (sil, ui, vi): sil (Hf, Wf) bool; ui, vi the retina column and row of each fovea
-        column and row relative to ``bbox`` (may fall outside it). None when the
-        silhouette is not wholly inside the fovea.
-    """
-    m = fovea_camera.focal_px / camera.focal_px
-    hf, wf = fovea_camera.height, fovea_camera.width
-    uf0 = (bbox[0] - camera.width / 2.0) * m + wf / 2.0
-    uf1 = (bbox[2] - camera.width / 2.0) * m + wf / 2.0
-    vf0 = (bbox[1] - camera.height / 2.0) * m + hf / 2.0
-    vf1 = (bbox[3] - camera.height / 2.0) * m + hf / 2.0
-    if uf0 < HALF + 1 or vf0 < HALF + 1 or uf1 > wf - HALF - 1 or vf1 > hf - HALF - 1:
-        return None
-    uc = (np.arange(wf) + 0.5 - wf / 2.0) / m + camera.width / 2.0
-    vc = (np.arange(hf) + 0.5 - hf / 2.0) / m + camera.height / 2.0
-    ui, vi = np.floor(uc).astype(int) - bbox[0], np.floor(vc).astype(int) - bbox[1]
-    in_u = (ui >= 0) & (ui < mask.shape[1])
-    in_v = (vi >= 0) & (vi < mask.shape[0])
-    sil = np.zeros((hf, wf), bool)
-    sil[np.ix_(in_v, in_u)] = mask[np.ix_(vi[in_v], ui[in_u])]
-    return sil, ui, vi
 
 
 def row_disparities(left: np.ndarray, right: np.ndarray, rows: slice, cols: slice
@@ -211,7 +184,7 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
             2``: a box turned 45 degrees has its far corner half its image width behind).
         min_pixels: Least retina pixels of the layer and of what it leaves.
     """
-    mapped = silhouette_in_fovea(mask, bbox, camera, fovea_camera)
+    mapped = silhouette_in_fovea(mask, bbox, camera, fovea_camera, margin=HALF + 1)
     if mapped is None or not np.isfinite(depth) or depth <= 0:
         return None
     sil, ui, vi = mapped
