@@ -11,8 +11,14 @@ from roger_common.conversions import stereo_geometry_msg
 from roger_common.types import Action, CameraModel, EyePose, Goal, ObjectSpec, WorldSpec
 from roger_experiments.evaluation import object_under_window
 from roger_perception.config import PerceptionConfig
-from roger_perception.fovea_layers import Layer, Layers, layer_behind, project_layer
-from roger_perception.perception import Perception
+from roger_perception.fovea_layers import (
+    Layer,
+    Layers,
+    fixated_layers,
+    layer_behind,
+    project_layer,
+)
+from roger_perception.perception import Perception, _occluder_beside
 from roger_perception.perception_node import _complete
 from roger_perception.roi_finder import find_objects
 from roger_sim.config import SimConfig
@@ -24,6 +30,11 @@ from roger_sim.simulator import Simulator
 NEAR = ObjectSpec("near", "cylinder", (0.703, -0.477), 0.10, 65.0, 0.8, yaw=1.57)
 FAR = ObjectSpec("far", "prism", (0.824, -0.563), 0.08, 109.0, 0.4)
 PAIR = WorldSpec((NEAR, FAR))
+#: A 0.14 m box 19 cm in front of a 0.09 m cylinder: fixating the cylinder, the box's edge
+#: joins the cylinder's ROI (a random world's pair whose cylinder window the scorer read as
+#: empty, and whose look was stored as an object of nothing).
+EDGE = ObjectSpec("near", "box", (0.351, -0.693), 0.14, 104.0, 1.6, yaw=0.23)
+BEHIND_EDGE = ObjectSpec("far", "cylinder", (0.322, -0.883), 0.09, 68.0, 0.2, yaw=2.33)
 
 
 def _look(world: WorldSpec, at: tuple[float, float], seed: int = 0,
@@ -105,8 +116,52 @@ def test_an_object_alone_has_no_layer_behind(spec: ObjectSpec) -> None:
     """Its own far side (a box turned to the eye, a big box near it, a periodic texture)
     and the ground just beyond its top edge are not another object."""
     frame = _look(WorldSpec((spec,)), spec.position)
-    _, layer = _fixated_layer(frame)
+    obj, layer = _fixated_layer(frame)
     assert layer is None
+    # Nor a layer in front: its own front face or near edge is within its footprint.
+    assert fixated_layers(frame.fovea, frame.fovea_right, frame.fovea_camera, frame.camera,
+                          frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
+                          obj.depth, obj.width_px * obj.depth / frame.camera.focal_px, 12,
+                          position=obj.position) == (None, None)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_nearer_objects_edge_in_the_fixated_roi_is_a_layer_in_front(seed: int) -> None:
+    """Fixating the far cylinder, the box's edge that joined its ROI is found in front, at
+    the box's place, beside the box's own ROI; perception takes it out of the ROI."""
+    world = WorldSpec((EDGE, BEHIND_EDGE))
+    frame = _look(world, BEHIND_EDGE.position, seed=seed)
+    seen, _ = find_objects(frame, PerceptionConfig())
+    from roger_perception.fovea import fixated
+    (obj,) = [o for o in seen if fixated(o.blob.mask, o.blob.bbox, frame.camera)
+              and _names(frame, o, o.blob.mask).get("far", 0) > 20]
+    joined = _names(frame, obj, obj.blob.mask)
+    assert joined.get("near", 0) >= 5                      # the box's edge joined it
+    behind, front = fixated_layers(
+        frame.fovea, frame.fovea_right, frame.fovea_camera, frame.camera, frame.left_pose,
+        frame.right_pose, obj.blob.mask, obj.blob.bbox, obj.depth,
+        obj.width_px * obj.depth / frame.camera.focal_px, 12, position=obj.position)
+    assert behind is None and front is not None and front.front
+    assert front.depth < obj.depth - 0.1
+    centre = np.median(front.points, axis=0)
+    assert np.hypot(centre[0] - EDGE.position[0], centre[1] - EDGE.position[1]) < 0.1
+    assert _occluder_beside(front, obj, seen, frame.camera)
+    # Without its position (the paper's test of behind alone) none is looked for.
+    assert fixated_layers(frame.fovea, frame.fovea_right, frame.fovea_camera, frame.camera,
+                          frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
+                          obj.depth, obj.width_px * obj.depth / frame.camera.focal_px,
+                          12)[1] is None
+    # Perception (extended) takes the edge out of the cylinder's ROI; the paper mode keeps
+    # it: the box's pixels among the ROI's own.
+    near_in = {}
+    for mode in ("extended", "paper"):
+        perception = Perception(PerceptionConfig(features=mode))
+        rois = perception.process(frame)
+        (roi,) = [r for r in rois if np.hypot(r.position[0] - BEHIND_EDGE.position[0],
+                                              r.position[1] - BEHIND_EDGE.position[1]) < 0.06]
+        own = perception.last_roi_labels == roi.roi_id + 1
+        near_in[mode] = int((frame.left_labels[own] == frame.label_names.index("near")).sum())
+    assert near_in["paper"] >= 5 and near_in["extended"] <= near_in["paper"] // 2, near_in
 
 
 def test_the_far_object_gets_a_roi_and_a_window_of_its_own_in_later_frames_too() -> None:

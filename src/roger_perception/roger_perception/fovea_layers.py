@@ -38,6 +38,17 @@ the two eye poses, never the simulator's objects). Perception keeps them by posi
 parted there, so the object behind gets a map entry and attention can visit it, and the
 nearer one is measured on its own pixels. A later fixation of the same ROI that finds no
 layer behind forgets it.
+
+The mirror case, a **layer in front** (``fixated_layers``' second result): fixating the far
+object of such a pair, the nearer one's edge may join the far one's ROI. Samples nearer
+than the fixated surface by more than its near bound (half its width in front) plus
+``MARGIN_PX``, above the ground and farther than ``FOOTPRINT`` half widths plus
+``FOOTPRINT_MARGIN_M`` from the ROI's centre on the ground plane (a box's front corner, a
+prism's near edge are within), form it as above, unopened (an edge may be a sliver).
+Those samples sit on the occluding boundary (a window across it takes the nearer edge's
+disparity), so they only say that a nearer object joined; perception confirms it by the
+nearer object's own ROI beside it and takes its extent from the greys
+(``perception.front_extent``).
 """
 
 from __future__ import annotations
@@ -71,6 +82,12 @@ UNIQUENESS: float = 0.8
 VOTE: float = 0.5
 #: Left-right consistency: the right pixel's own best match points back within this.
 CONSISTENCY_PX: int = 1
+#: A sample in front is another object's where it stands farther than this many half
+#: widths of the fixated ROI from its centre on the ground plane (half a square's
+#: diagonal: a box's corner turned to the eye)...
+FOOTPRINT: float = float(np.sqrt(2.0))
+#: ... plus this, metres (the ROI's centre is the plane sweep's, a step of a few cm).
+FOOTPRINT_MARGIN_M: float = 0.03
 
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
@@ -78,19 +95,22 @@ _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 @dataclass(frozen=True)
 class Layer:
-    """The part of a ROI that stands behind the fixated object.
+    """The part of a ROI that stands behind (or in front of) the fixated object.
 
     Attributes:
         mask: Retina pixels of the layer, within the ROI's bbox (same shape as its mask).
         points: (N, 3) robot-frame points of the layer's fovea pixels at its depth.
         depth: Median left-eye depth of its samples, metres.
-        samples: Consistent samples behind.
+        samples: Consistent samples behind (in front).
+        front: The layer stands in front of the fixated object (the nearer object's
+            corner that joined its ROI), not behind it.
     """
 
     mask: np.ndarray
     points: np.ndarray
     depth: float
     samples: int
+    front: bool = False
 
 
 def row_disparities(left: np.ndarray, right: np.ndarray, rows: slice, cols: slice
@@ -172,7 +192,20 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
                  camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
                  mask: np.ndarray, bbox: tuple[int, int, int, int], depth: float,
                  width_m: float, min_pixels: int) -> Layer | None:
-    """The part of a fixated ROI that stands behind it (module docstring), or None.
+    """The part of a fixated ROI that stands behind it (module docstring), or None: the
+    first of :func:`fixated_layers`."""
+    return fixated_layers(left_fovea, right_fovea, fovea_camera, camera, left_pose,
+                          right_pose, mask, bbox, depth, width_m, min_pixels)[0]
+
+
+def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
+                   fovea_camera: CameraModel, camera: CameraModel, left_pose: EyePose,
+                   right_pose: EyePose, mask: np.ndarray, bbox: tuple[int, int, int, int],
+                   depth: float, width_m: float, min_pixels: int,
+                   position: Sequence[float] | None = None
+                   ) -> tuple[Layer | None, Layer | None]:
+    """The parts of a fixated ROI that stand behind it and in front of it (module
+    docstring): (behind, in front), each None when there is none.
 
     Args:
         left_fovea, right_fovea: The two foveae of one visual improvement.
@@ -181,12 +214,15 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
         mask, bbox: The ROI's silhouette in the left retina.
         depth: The ROI's depth along the left optical axis, metres.
         width_m: Its image width at its depth, metres (its far bound is ``depth + width_m /
-            2``: a box turned 45 degrees has its far corner half its image width behind).
-        min_pixels: Least retina pixels of the layer and of what it leaves.
+            2``: a box turned 45 degrees has its far corner half its image width behind;
+            its near bound as far in front).
+        min_pixels: Least retina pixels of the layer behind and of what a layer leaves.
+        position: The ROI's robot-frame position; without it no layer in front is
+            looked for.
     """
     mapped = silhouette_in_fovea(mask, bbox, camera, fovea_camera, margin=HALF + 1)
     if mapped is None or not np.isfinite(depth) or depth <= 0:
-        return None
+        return None, None
     sil, ui, vi = mapped
     vs_all, us_all = np.nonzero(sil)
     rows = slice(int(vs_all.min()), int(vs_all.max()) + 1)
@@ -198,16 +234,18 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
     sample = sub & (grad > GRADIENT) & np.isfinite(disp)
     sv, su = np.nonzero(sample)
     if sv.size < MIN_SAMPLES:
-        return None
+        return None, None
     su_f, sv_f = su + cols.start, sv + rows.start
     d = disp[sv, su]
-    # Its far bound, half its width behind: how much farther that is, in disparity, along
-    # each sample's own ray.
+    # Its far bound, half its width behind (and its near bound as far in front): how much
+    # farther (nearer) that is, in disparity, along each sample's own ray.
     rays = _rays(fovea_camera, left_pose, su_f.astype(float), sv_f.astype(float))
-    at_centre = left_pose.position + rays * depth
-    at_bound = left_pose.position + rays * (depth + 0.5 * max(width_m, 0.0))
-    extent = (_project_u(fovea_camera, right_pose, at_bound)
-              - _project_u(fovea_camera, right_pose, at_centre))
+    half = 0.5 * max(width_m, 0.0)
+    u_centre = _project_u(fovea_camera, right_pose, left_pose.position + rays * depth)
+    extent = _project_u(fovea_camera, right_pose, left_pose.position + rays * (depth + half)) \
+        - u_centre
+    extent_front = u_centre - _project_u(fovea_camera, right_pose,
+                                         left_pose.position + rays * max(depth - half, 1e-3))
     # The fixated object's own surface: the disparities, an object's depth wide, that hold
     # the most samples (the plane sweep's depth is a step of several centimetres, the
     # fovea's a fraction of one; a curved face spreads over a few pixels).
@@ -218,65 +256,122 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
     c_best = -int(max(held)[1])
     d_own = float(np.median(d[(d >= c_best) & (d <= c_best + span)]))
     behind = d > d_own + extent + MARGIN_PX
-    if int(behind.sum()) < MIN_SAMPLES:
+    front = d < d_own - extent_front - MARGIN_PX
+    samples = _Samples(sub, sv, su, su_f, sv_f, d, rays, rows, cols, ui, vi, smooth)
+    layer_front = None
+    if position is not None and front.any():
+        # In front by its disparity, and outside the fixated object's own footprint: a
+        # box's front face or a prism's near edge stands nearer than its surface's median
+        # too, but within half its diagonal of its centre on the ground plane.
+        idx = np.flatnonzero(front)
+        pts = _triangulate(
+            np.broadcast_to(left_pose.position, (idx.size, 3)), rays[idx],
+            np.broadcast_to(right_pose.position, (idx.size, 3)),
+            _rays(fovea_camera, right_pose, (su_f[idx] + d[idx]).astype(float),
+                  sv_f[idx].astype(float)))
+        centre = np.asarray(position, float)[:2]
+        away = np.hypot(pts[:, 0] - centre[0], pts[:, 1] - centre[1])
+        front[idx] = np.nan_to_num(away, nan=0.0) > FOOTPRINT * half + FOOTPRINT_MARGIN_M
+        layer_front = _layer(samples, front, True, mask, fovea_camera, left_pose, right_pose,
+                             min_pixels)
+    return (_layer(samples, behind, False, mask, fovea_camera, left_pose, right_pose,
+                   min_pixels), layer_front)
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The matched samples of a fixated ROI's fovea (``fixated_layers``)."""
+
+    sub: np.ndarray        # its silhouette within the matched rows x cols
+    sv: np.ndarray         # sample rows and columns within them
+    su: np.ndarray
+    su_f: np.ndarray       # and in the fovea
+    sv_f: np.ndarray
+    d: np.ndarray          # their disparities
+    rays: np.ndarray       # their left rays
+    rows: slice
+    cols: slice
+    ui: np.ndarray         # fovea column / row -> retina column / row within the bbox
+    vi: np.ndarray
+    smooth: np.ndarray     # the smoothed left fovea
+
+
+def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
+           fovea_camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
+           min_pixels: int) -> Layer | None:
+    """The layer of the samples ``side`` (behind the fixated object, or in ``front`` of
+    it), or None."""
+    side = side.copy()
+    if int(side.sum()) < MIN_SAMPLES:
         return None
-    # Samples behind on the ground (the ground just beyond the object's top edge, inside
-    # its silhouette's last retina pixel) are no object.
-    idx = np.flatnonzero(behind)
+    sv, su, su_f, sv_f, d, rays = s.sv, s.su, s.su_f, s.sv_f, s.d, s.rays
+    # Samples on the ground (behind: the ground just beyond the object's top edge, inside
+    # its silhouette's last retina pixel; in front: the ground at its foot) are no object.
+    idx = np.flatnonzero(side)
     pts_b = _triangulate(
         np.broadcast_to(left_pose.position, (idx.size, 3)), rays[idx],
         np.broadcast_to(right_pose.position, (idx.size, 3)),
         _rays(fovea_camera, right_pose, (su_f[idx] + d[idx]).astype(float),
               sv_f[idx].astype(float)))
-    ground = np.zeros_like(behind)
+    ground = np.zeros_like(side)
     ground[idx] = ~(np.nan_to_num(pts_b[:, 2], nan=-1.0) > MIN_HEIGHT_M)
-    behind &= ~ground
-    if int(behind.sum()) < MIN_SAMPLES:
+    side &= ~ground
+    if int(side.sum()) < MIN_SAMPLES:
         return None
     # The untextured pixels between the samples (a top face, a flank) take the layer they
     # reach without crossing an intensity step: a watershed from the samples over the
     # fovea's own intensity, so that the boundary between the layers falls on the nearer
     # object's occluding edge, not halfway between the samples.
+    sub = s.sub
     hh, ww = sub.shape
-    grey = np.clip(smooth[rows, cols] * 255.0, 0.0, 255.0).astype(np.uint8)
+    grey = np.clip(s.smooth[s.rows, s.cols] * 255.0, 0.0, 255.0).astype(np.uint8)
     markers = np.where(sub, 0, 3).astype(np.int32)
-    own = ~behind & ~ground
+    own = ~side & ~ground
     markers[sv[own], su[own]] = 1
-    markers[sv[behind], su[behind]] = 2
+    markers[sv[side], su[side]] = 2
     markers[sv[ground], su[ground]] = 3
     cv2.watershed(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR), markers)
-    far_f = sub & (markers == 2)
-    near_f = sub & (markers == 1)
-    # Back onto the retina: a retina pixel is behind (or the fixated object's) where more
-    # than VOTE of its fovea pixels are.
+    layer_f = sub & (markers == 2)
+    own_f = sub & (markers == 1)
+    # Back onto the retina: a retina pixel is the layer's (or the fixated object's) where
+    # more than VOTE of its fovea pixels are.
     count = np.zeros(mask.shape, np.float32)
     votes = np.zeros(mask.shape, np.float32)
-    votes_near = np.zeros(mask.shape, np.float32)
-    vv = vi[rows][:, None].repeat(ww, axis=1)
-    uu = ui[cols][None, :].repeat(hh, axis=0)
+    votes_own = np.zeros(mask.shape, np.float32)
+    vv = s.vi[s.rows][:, None].repeat(ww, axis=1)
+    uu = s.ui[s.cols][None, :].repeat(hh, axis=0)
     inside = sub & (vv >= 0) & (vv < mask.shape[0]) & (uu >= 0) & (uu < mask.shape[1])
     at = (vv[inside], uu[inside])
     np.add.at(count, at, 1.0)
-    np.add.at(votes, at, far_f[inside].astype(np.float32))
-    np.add.at(votes_near, at, near_f[inside].astype(np.float32))
-    far = mask & (count > 0) & (votes > VOTE * count)
-    far = cv2.morphologyEx(far.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8)) > 0
-    # A retina pixel on the boundary holds both; the occluding edge is the nearer object's.
-    near = (mask & ~far & (count > 0) & (votes_near > VOTE * count)).astype(np.uint8)
-    far &= ~(cv2.dilate(near, _CROSS) > 0)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(far.astype(np.uint8), connectivity=4)
+    np.add.at(votes, at, layer_f[inside].astype(np.float32))
+    np.add.at(votes_own, at, own_f[inside].astype(np.float32))
+    layer = mask & (count > 0) & (votes > VOTE * count)
+    if front:
+        # The nearer object's corner in the fixated ROI may be a sliver of a few pixels:
+        # kept unopened. A retina pixel on the boundary holds both, and the occluding edge
+        # is the nearer object's: the layer's.
+        mine_r = mask & ~layer & (count > 0) & (votes_own > VOTE * count)
+        layer |= mask & (cv2.dilate(layer.astype(np.uint8), _CROSS) > 0) & ~mine_r
+    else:
+        layer = cv2.morphologyEx(layer.astype(np.uint8), cv2.MORPH_OPEN,
+                                 np.ones((2, 2), np.uint8)) > 0
+        # A retina pixel on the boundary holds both; the occluding edge is the nearer
+        # object's.
+        near = (mask & ~layer & (count > 0) & (votes_own > VOTE * count)).astype(np.uint8)
+        layer &= ~(cv2.dilate(near, _CROSS) > 0)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(layer.astype(np.uint8), connectivity=4)
     if n <= 1:
         return None
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    far = lab == k
-    if int(far.sum()) < min_pixels or int((mask & ~far).sum()) < min_pixels:
+    layer = lab == k
+    if (not front and int(layer.sum()) < min_pixels) or int((mask & ~layer).sum()) < min_pixels:
         return None
-    # Its samples: those behind whose retina pixel is in the kept piece.
-    sv_r, su_r = vi[sv_f], ui[su_f]
+    # Its samples: those of its side whose retina pixel is in the kept piece.
+    sv_r, su_r = s.vi[sv_f], s.ui[su_f]
     ok_r = (sv_r >= 0) & (sv_r < mask.shape[0]) & (su_r >= 0) & (su_r < mask.shape[1])
     mine = np.zeros(sv.size, bool)
-    mine[ok_r] = far[sv_r[ok_r], su_r[ok_r]]
-    mine &= behind
+    mine[ok_r] = layer[sv_r[ok_r], su_r[ok_r]]
+    mine &= side
     if int(mine.sum()) < MIN_SAMPLES:
         return None
     pts = _triangulate(
@@ -288,24 +383,35 @@ def layer_behind(left_fovea: np.ndarray, right_fovea: np.ndarray, fovea_camera: 
     cam_z = cam_z[np.isfinite(cam_z)]
     if cam_z.size < MIN_SAMPLES:
         return None
-    z_far = float(np.median(cam_z))
+    z_layer = float(np.median(cam_z))
     # The layer's fovea pixels placed at its depth.
-    far_fovea = np.zeros_like(sub)
+    layer_fovea = np.zeros_like(sub)
     rv, ru = np.nonzero(inside)
-    far_fovea[rv, ru] = far[vv[rv, ru], uu[rv, ru]]
-    fv, fu = np.nonzero(far_fovea & sub)
-    points = left_pose.position + _rays(fovea_camera, left_pose, (fu + cols.start).astype(float),
-                                        (fv + rows.start).astype(float)) * z_far
-    return Layer(mask=far, points=points.astype(np.float64), depth=z_far,
-                 samples=int(mine.sum()))
+    layer_fovea[rv, ru] = layer[vv[rv, ru], uu[rv, ru]]
+    fv, fu = np.nonzero(layer_fovea & sub)
+    points = left_pose.position + _rays(fovea_camera, left_pose,
+                                        (fu + s.cols.start).astype(float),
+                                        (fv + s.rows.start).astype(float)) * z_layer
+    return Layer(mask=layer, points=points.astype(np.float64), depth=z_layer,
+                 samples=int(mine.sum()), front=front)
+
+
+def retina_points(camera: CameraModel, pose: EyePose, mask: np.ndarray,
+                  bbox: tuple[int, int, int, int], depth: float) -> np.ndarray:
+    """(N, 3) robot-frame points of a retina mask's pixel centres (``mask`` within
+    ``bbox``) at ``depth`` along the optical axis."""
+    vs, us = np.nonzero(mask)
+    rays = _rays(camera, pose, (us + bbox[0]).astype(float), (vs + bbox[1]).astype(float))
+    return np.asarray(pose.position + rays * depth, np.float64)
 
 
 def project_layer(points: np.ndarray, camera: CameraModel, pose: EyePose,
-                  mask: np.ndarray, bbox: tuple[int, int, int, int], min_pixels: int
-                  ) -> np.ndarray | None:
+                  mask: np.ndarray, bbox: tuple[int, int, int, int], min_pixels: int,
+                  min_layer: int | None = None) -> np.ndarray | None:
     """The retina pixels of a ROI that a kept layer's points fall on (closed with a 3 x 3
-    square, and kept as their largest connected piece), or
-    None when fewer than ``min_pixels`` of either part remain."""
+    square, and kept as their largest connected piece), or None when fewer than
+    ``min_layer`` (default ``min_pixels``) of them or fewer than ``min_pixels`` of the
+    rest remain."""
     p = (points - pose.position) @ pose.rotation
     front = p[:, 2] > 1e-6
     if not front.any():
@@ -323,15 +429,16 @@ def project_layer(points: np.ndarray, camera: CameraModel, pose: EyePose,
     if n <= 1:
         return None
     far = lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    if int(far.sum()) < min_pixels or int((mask & ~far).sum()) < min_pixels:
+    least = min_pixels if min_layer is None else min_layer
+    if int(far.sum()) < least or int((mask & ~far).sum()) < min_pixels:
         return None
     return far
 
 
 class Layers:
-    """Layers behind, kept by the position of the ROI they were found in (module
-    docstring): a later ROI near that position, or holding the layer's projection, is
-    parted there.
+    """Layers (behind, or in front), kept by the position of the ROI they were found in
+    (module docstring): a later ROI near that position, or holding the layer's
+    projection, is parted there.
 
     Args:
         radius: A kept layer belongs to a later ROI within this distance, metres.

@@ -65,11 +65,17 @@ from roger_perception.fovea import (
     outline_feature,
     top_against_other,
 )
-from roger_perception.fovea_layers import Layers, layer_behind, project_layer
+from roger_perception.fovea_layers import (
+    Layer,
+    Layers,
+    fixated_layers,
+    project_layer,
+    retina_points,
+)
 from roger_perception.haptic import HapticMemory, touches
 from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import SeenObject, find_objects, raster_index
-from roger_perception.segmentation import background_level, blob_of, window_boxes
+from roger_perception.segmentation import background_level, blob_of, ground_level, window_boxes
 from roger_perception.shape import (
     smoothed_grey,
     sphere_albedo,
@@ -111,6 +117,8 @@ class Perception:
         self.fovea_looks = FoveaLooks(self.config.haptic_radius_m)
         #: Layers behind fixated ROIs the two foveae found (``fovea_layers``), by position.
         self.layers = Layers(self.config.haptic_radius_m)
+        #: Layers in front of fixated ROIs (a nearer object's edge that joined them).
+        self.fronts = Layers(self.config.haptic_radius_m)
         #: The last fovea's steps (``fovea.fovea_steps``), computed once for its ROIs.
         self._fovea_steps: tuple[np.ndarray, tuple[np.ndarray, float]] | None = None
         #: The last left retina and its three-pixel row means (``shape.smoothed_grey``), for A.
@@ -145,6 +153,7 @@ class Perception:
         self.haptic_memory.clear()
         self.fovea_looks.clear()
         self.layers.clear()
+        self.fronts.clear()
         self._previous_view = None
         self._last_log = ([], [])
         self.last_roi_labels = np.zeros((0, 0), np.int32)
@@ -291,10 +300,13 @@ class Perception:
 
 
     def _part_layers(self, frame: StereoFrame, seen: list[SeenObject]) -> list[SeenObject]:
-        """Part ROIs where a layer behind was found (``fovea_layers``): first the fixated
-        ROI on a look with both foveae (the layer found, or none, is kept by the ROI's
-        position), then every ROI near a kept layer's position whose pixels the layer's
-        points fall on. Returns the objects in left-retina raster order."""
+        """Part ROIs where a layer behind or in front was found (``fovea_layers``): first
+        the fixated ROI on a look with both foveae (the layers found, or none, are kept by
+        the ROI's position), then every ROI near a kept layer's position whose pixels the
+        layer's points fall on. A layer in front is a nearer object's edge: it leaves the
+        ROI, and is a ROI of its own only where no other ROI of the frame stands near its
+        place (the nearer object's own ROI). Returns the objects in left-retina raster
+        order."""
         cfg = self.config
         camera = frame.camera
         if (frame.fovea is not None and frame.fovea_right is not None
@@ -302,36 +314,86 @@ class Perception:
             for obj in seen:
                 if obj.cut or not fixated(obj.blob.mask, obj.blob.bbox, camera):
                     continue
-                layer = layer_behind(frame.fovea, frame.fovea_right, frame.fovea_camera,
-                                     camera, frame.left_pose, frame.right_pose,
-                                     obj.blob.mask, obj.blob.bbox, obj.depth,
-                                     obj.width_px * obj.depth / camera.focal_px,
-                                     cfg.min_roi_pixels)
-                self.layers.put(obj.position, layer)
-        if not len(self.layers):
+                behind, front = fixated_layers(
+                    frame.fovea, frame.fovea_right, frame.fovea_camera, camera,
+                    frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
+                    obj.depth, obj.width_px * obj.depth / camera.focal_px,
+                    cfg.min_roi_pixels, position=obj.position)
+                if front is not None:
+                    front = self._front_layer(front, obj, seen, frame)
+                self.layers.put(obj.position, behind)
+                self.fronts.put(obj.position, front)
+        if not len(self.layers) and not len(self.fronts):
             return seen
-        out: list[SeenObject] = []
-        bg: float | None = None
-        for obj in seen:
-            far = None
-            if not obj.cut:
-                for layer in self.layers.near(obj.position):
-                    far = project_layer(layer.points, camera, frame.left_pose, obj.blob.mask,
-                                        obj.blob.bbox, cfg.min_roi_pixels)
-                    if far is not None:
-                        depths = (layer.points - frame.left_pose.position) \
-                            @ frame.left_pose.rotation[:, 2]
-                        far_depth = float(np.median(depths))
-                        break
-            if far is None:
-                out.append(obj)
-                continue
-            if bg is None:
-                bg = background_level(frame.left)
-            out.append(_part(obj, obj.blob.mask & ~far, obj.depth, frame, bg))
-            out.append(_part(obj, far, far_depth, frame, bg))
-        out.sort(key=lambda o: raster_index(o.blob, camera.width))
-        return out
+        bg = background_level(frame.left)
+        if len(self.fronts):
+            out: list[SeenObject] = []
+            for obj in seen:
+                found = self._kept_part(self.fronts, obj, frame, min_layer=1)
+                if found is None:
+                    out.append(obj)
+                    continue
+                near, near_depth = found
+                out.append(_part(obj, obj.blob.mask & ~near, obj.depth, frame, bg))
+                piece = _part(obj, near, near_depth, frame, bg)
+                if int(near.sum()) >= cfg.min_roi_pixels and not any(
+                        other is not obj and math.dist(other.position[:2], piece.position[:2])
+                        <= self.fronts.radius for other in seen):
+                    out.append(piece)
+            seen = out
+        if len(self.layers):
+            out = []
+            for obj in seen:
+                found = self._kept_part(self.layers, obj, frame, cfg.min_roi_pixels)
+                if found is None:
+                    out.append(obj)
+                    continue
+                far, far_depth = found
+                out.append(_part(obj, obj.blob.mask & ~far, obj.depth, frame, bg))
+                out.append(_part(obj, far, far_depth, frame, bg))
+            seen = out
+        seen.sort(key=lambda o: raster_index(o.blob, camera.width))
+        return seen
+
+    def _front_layer(self, found: Layer, obj: SeenObject, seen: Sequence[SeenObject],
+                     frame: StereoFrame) -> Layer | None:
+        """A layer in front found in the fovea, confirmed by a nearer ROI beside it at its
+        depth, and its extent in the retina: the ROI's pixels joined to the occluder's
+        across greys of one surface (``front_extent``); placed at the layer's depth. None
+        where either fails."""
+        camera = frame.camera
+        occluder = _occluder_beside(found, obj, seen, camera)
+        if occluder is None:
+            return None
+        fg = np.zeros(frame.left.shape, np.uint8)
+        for o in seen:
+            u0, v0, u1, v1 = o.blob.bbox
+            fg[v0:v1, u0:u1] |= o.blob.mask.astype(np.uint8)
+        level, spread = ground_level(np.asarray(frame.left, np.float32), fg)
+        spread = max(spread, 1e-4)
+        grown = front_extent(obj, occluder, frame.left, STEP_SIGMAS * math.sqrt(2.0) * spread,
+                             level + GROUND_SIGMAS * spread)
+        if grown is None or int((obj.blob.mask & ~grown).sum()) < self.config.min_roi_pixels:
+            return None
+        return Layer(mask=grown, points=retina_points(camera, frame.left_pose, grown,
+                                                      obj.blob.bbox, found.depth),
+                     depth=found.depth, samples=found.samples, front=True)
+
+    def _kept_part(self, layers: Layers, obj: SeenObject, frame: StereoFrame,
+                   min_layer: int) -> tuple[np.ndarray, float] | None:
+        """The pixels of ``obj`` a kept layer near it falls on and the layer's depth along
+        the left optical axis, or None."""
+        if obj.cut:
+            return None
+        for layer in layers.near(obj.position):
+            part = project_layer(layer.points, frame.camera, frame.left_pose, obj.blob.mask,
+                                 obj.blob.bbox, self.config.min_roi_pixels,
+                                 min_layer=min_layer)
+            if part is not None:
+                depths = (layer.points - frame.left_pose.position) \
+                    @ frame.left_pose.rotation[:, 2]
+                return part, float(np.median(depths))
+        return None
 
     def _extend(self, feats: np.ndarray, known: np.ndarray, frame: StereoFrame, blob: Any,
                 position: tuple[float, float, float], labels: np.ndarray,
@@ -394,6 +456,108 @@ class Perception:
             extra_known[-len(touch):] = np.isfinite(values)
         return (np.concatenate([feats, extra]).astype(np.float32),
                 np.concatenate([known, extra_known]))
+
+
+#: A layer in front belongs to a nearer ROI of the frame whose pixels come within this many
+#: retina pixels of it...
+OCCLUDER_GAP_PX: int = 2
+#: ... and whose depth lies within half its own width plus this of the layer's, metres.
+OCCLUDER_DEPTH_M: float = 0.03
+
+
+def _occluder_beside(layer: Layer, obj: SeenObject, seen: Sequence[SeenObject],
+                     camera: CameraModel) -> SeenObject | None:
+    """The nearer ROI of the frame whose edge a layer in front of ``obj`` is: beside it
+    in the retina (within ``OCCLUDER_GAP_PX`` of the layer's pixels) and at the layer's
+    depth (the occluder's body continues past the fixated ROI's edge), or None. A layer in
+    front with no such ROI beside it (a false match on the fixated object's own faces) is
+    not one."""
+    u0, v0 = obj.blob.bbox[0], obj.blob.bbox[1]
+    rows, cols = np.nonzero(layer.mask)
+    if rows.size == 0:
+        return None
+    g = OCCLUDER_GAP_PX
+    for other in seen:
+        if other is obj:
+            continue
+        width = other.width_px * other.depth / camera.focal_px
+        if abs(other.depth - layer.depth) > 0.5 * width + OCCLUDER_DEPTH_M:
+            continue
+        ou0, ov0 = other.blob.bbox[0], other.blob.bbox[1]
+        om = other.blob.mask
+        for r, c in zip(rows + v0 - ov0, cols + u0 - ou0, strict=True):
+            window = om[max(0, r - g):max(0, r + g + 1), max(0, c - g):max(0, c + g + 1)]
+            if window.size and window.any():
+                return other
+    return None
+
+
+#: Two 4-neighbours of one surface differ by less than this many times the retina's own
+#: pixel noise (of a difference: sqrt 2 sigma); the shading of a curved face steps by 1-3.
+STEP_SIGMAS: float = 6.0
+#: A pixel no brighter than the ground's level plus this many times its noise is ground
+#: (as ``segmentation.sure_ground``).
+GROUND_SIGMAS: float = 3.0
+
+
+def front_extent(obj: SeenObject, occluder: SeenObject, image: np.ndarray, step: float,
+                 ground_max: float) -> np.ndarray | None:
+    """The pixels of ``obj`` that are the nearer ``occluder``'s edge: grown from those of
+    its pixels within ``OCCLUDER_GAP_PX`` of an occluder pixel whose grey is within
+    ``step`` of the occluder's there, through 4-neighbours within ``step`` of each other
+    (one surface's shading), never across a larger step (two greys that are not one
+    surface's) nor farther than two steps from the occluder's grey where it meets the ROI;
+    None when nothing grows, or when half of ``obj`` or more would (the two greys cannot
+    be told apart). Pixels no brighter than ``ground_max`` (the ground's level plus its
+    noise: both ROIs hold some ground at their feet) neither seed nor grow it."""
+    u0, v0, u1, v1 = obj.blob.bbox
+    img = np.asarray(image, np.float32)
+    grey = img[v0:v1, u0:u1]
+    mask = obj.blob.mask & (grey > ground_max)
+    g = OCCLUDER_GAP_PX
+    # The occluder's pixels around the ROI's bbox, g pixels beyond it.
+    h, w = mask.shape
+    occ = np.zeros((h + 2 * g, w + 2 * g), bool)
+    ou0, ov0, ou1, ov1 = occluder.blob.bbox
+    r0, r1 = max(v0 - g, ov0), min(v1 + g, ov1)
+    c0, c1 = max(u0 - g, ou0), min(u1 + g, ou1)
+    if r0 >= r1 or c0 >= c1:
+        return None
+    occ[r0 - v0 + g:r1 - v0 + g, c0 - u0 + g:c1 - u0 + g] = \
+        occluder.blob.mask[r0 - ov0:r1 - ov0, c0 - ou0:c1 - ou0] & (img[r0:r1, c0:c1]
+                                                                    > ground_max)
+    around = np.zeros(occ.shape, np.float32)
+    rr0, rr1 = max(v0 - g, 0), min(v1 + g, img.shape[0])
+    cc0, cc1 = max(u0 - g, 0), min(u1 + g, img.shape[1])
+    around[rr0 - v0 + g:rr1 - v0 + g, cc0 - u0 + g:cc1 - u0 + g] = img[rr0:rr1, cc0:cc1]
+    # The occluder's grey where it meets the ROI: the median of its pixels within g of
+    # the ROI's (a stray pixel of the fixated object in the occluder's ROI does not move it).
+    band = occ & (cv2.dilate(np.pad(mask, g).astype(np.uint8),
+                             np.ones((2 * g + 1, 2 * g + 1), np.uint8)) > 0)
+    if not band.any():
+        return None
+    occ_grey = float(np.median(around[band]))
+    grown = np.zeros(mask.shape, bool)
+    stack: list[tuple[int, int]] = []
+    for r, c in zip(*np.nonzero(mask), strict=True):
+        if occ[r:r + 2 * g + 1, c:c + 2 * g + 1].any() and abs(grey[r, c] - occ_grey) < step:
+            grown[r, c] = True
+            stack.append((int(r), int(c)))
+    # Grown through one surface's shading, never drifting from the occluder's grey by more
+    # than two steps.
+    while stack:
+        r, c = stack.pop()
+        for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            nr, nc = r + dr, c + dc
+            if (0 <= nr < h and 0 <= nc < w and mask[nr, nc] and not grown[nr, nc]
+                    and abs(grey[nr, nc] - grey[r, c]) < step
+                    and abs(grey[nr, nc] - occ_grey) < 2 * step):
+                grown[nr, nc] = True
+                stack.append((nr, nc))
+    n = int(grown.sum())
+    if n == 0 or 2 * n >= int(obj.blob.mask.sum()):
+        return None
+    return grown
 
 
 def _part(obj: SeenObject, mask: np.ndarray, depth: float, frame: StereoFrame, bg: float
