@@ -277,6 +277,38 @@ def test_a_tactile_image_shows_a_ridge_only_where_the_surface_falls_away_on_both
         pytest.approx(0.0, abs=1e-6)
 
 
+def test_a_reading_of_edges_only_that_crossed_no_crease_leaves_the_crease_unknown() -> None:
+    """Touches whose images are all lines (a ridge under the pad's border, never crossed)
+    cannot tell a ridge from a smooth top: TC unknown (NaN), and TK read as smooth. One
+    touch that pressed an area (a flat top, a sphere's top) makes a crease of 0 known; a
+    ridge under the pad, a full crease; touches without images, as before."""
+    from roger_common.types import TactileContact
+    from roger_perception.shape import pressed_area, tactile_shape, touch_shape
+    slope = math.tan(math.radians(60.0))
+
+    def touch(depth_of, x: float = 0.6) -> TactileContact:
+        image, pitch = _image(depth_of)
+        return TactileContact((x, 0.0, 0.1), (0.0, 0.0, 1.0), image=image, pitch=pitch)
+
+    border = touch(lambda x, y: slope * (0.02 - x))          # a flank under the border
+    border_too = touch(lambda x, y: slope * (x + 0.02), x=0.63)
+    flat = touch(lambda x, y: 0.0)
+    sphere = touch(lambda x, y: (x * x + y * y) / (2 * 0.04))
+    ridge = touch(lambda x, y: slope * abs(x))
+    assert not pressed_area(border) and not pressed_area(ridge)
+    assert pressed_area(flat) and pressed_area(sphere)
+    th, tk, tc, tr = tactile_shape([border, border_too])
+    assert math.isnan(tc) and math.isfinite(th) and tk == pytest.approx(0.0, abs=1e-6)
+    assert tactile_shape([border, flat])[2] == pytest.approx(0.0, abs=1e-6)
+    assert tactile_shape([sphere])[2] == pytest.approx(0.0, abs=1e-6)
+    assert tactile_shape([border, ridge])[2] == pytest.approx(1.0)
+    blind = [TactileContact(c.point, c.normal) for c in (border, border_too)]
+    assert tactile_shape(blind)[2] == pytest.approx(0.0, abs=1e-6)
+    # Pooled readings: the unknown one is left out of the median, a known one decides.
+    assert touch_shape([[border, border_too], [ridge]])[2] == pytest.approx(1.0)
+    assert touch_shape([[border, border_too], [flat]])[2] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_a_tactile_image_reads_a_flat_tops_rim_straight_or_round() -> None:
     from roger_common.types import TactileContact
     from roger_perception.shape import TR_SCALE_M, tactile_rim, tactile_shape

@@ -136,6 +136,9 @@ MIN_PAIR_M: float = 0.01
 #: Two touches whose normals are this far apart (radians) lie across an edge or a ridge,
 #: not on one smooth surface: a 10 cm sphere's touches 3 cm apart turn by 0.6.
 CREASE_RAD: float = 0.9
+#: A touch pressed an area (``pressed_area``) where a taxel this many taxels or more inside
+#: the pad's border is pressed with all its neighbours.
+AREA_INSET_TAXELS: int = 2
 #: A crease of this many radians (or more) reads TC = 1: every edge of a box (90 degrees)
 #: or a prism (60 or 120) is a full crease, wherever the first touch landed.
 CREASE_FULL_RAD: float = math.pi / 4
@@ -384,7 +387,13 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
     # A touch whose tactile image shows a ridge crossed a full crease under the pad itself.
     creases = [CREASE_FULL_RAD if any(tactile_ridge(c) for c in contacts) else crease
                for crease, contacts in zip(creases, readings, strict=True)]
-    crease = _unit(float(np.median(creases)) / CREASE_FULL_RAD)
+    # A reading that found no full crease and whose tactile images never pressed an area
+    # (every touch a line: the pad's border on an edge or a ridge) cannot tell a smooth
+    # top from a ridge it never crossed: its crease is unknown.
+    creases = [math.nan if crease < CREASE_FULL_RAD and _edges_only(contacts) else crease
+               for crease, contacts in zip(creases, readings, strict=True)]
+    known = [c for c in creases if math.isfinite(c)]
+    crease = _unit(float(np.median(known)) / CREASE_FULL_RAD) if known else math.nan
     # The curvature of a smooth surface: where the touches cross a crease (TC 1) the faces
     # are flat and what the pairs read as a curve is an edge's normal (module docstring).
     smooth_share = 1.0 - crease if math.isfinite(crease) else 1.0
@@ -392,6 +401,30 @@ def touch_shape(readings: Sequence[Sequence[TactileContact]]
     rim = _unit(float(np.median(rims)) * TR_SCALE_M) if rims else math.nan
     return (_unit(float(np.median(tops)) / H_MAX_M),
             _unit(curvature * TK_SCALE_M * smooth_share), crease, rim)
+
+
+def _edges_only(contacts: Sequence[TactileContact]) -> bool:
+    """True when every touch has a tactile image and none of them pressed an area
+    (``pressed_area``)."""
+    return bool(contacts) and all(c.taxels >= 3 and c.pitch > 0.0 for c in contacts) \
+        and not any(pressed_area(c) for c in contacts)
+
+
+@functools.lru_cache(maxsize=TOUCH_CACHE)
+def pressed_area(contact: TactileContact) -> bool:
+    """True when the touch's tactile image pressed an area inside the pad: some pressed
+    taxel with all eight neighbours pressed lies ``AREA_INSET_TAXELS`` or more from the
+    pad's border (a flat top, a curved one, a flank under the pad); False for a line (an
+    edge or a ridge under the pad or along its border), for a patch at the pad's border
+    or corner (a ridge that only caught the pad's corner), and without an image."""
+    n = contact.taxels
+    if n < 3 or contact.pitch <= 0.0:
+        return False
+    pressed = np.isfinite(np.asarray(contact.image, float)).reshape(n, n).astype(np.uint8)
+    core = cv2.erode(pressed, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=0) > 0
+    k = AREA_INSET_TAXELS
+    return bool(core[k:n - k, k:n - k].any())
 
 
 @functools.lru_cache(maxsize=TOUCH_CACHE)
