@@ -264,11 +264,7 @@ def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
         # box's front face or a prism's near edge stands nearer than its surface's median
         # too, but within half its diagonal of its centre on the ground plane.
         idx = np.flatnonzero(front)
-        pts = _triangulate(
-            np.broadcast_to(left_pose.position, (idx.size, 3)), rays[idx],
-            np.broadcast_to(right_pose.position, (idx.size, 3)),
-            _rays(fovea_camera, right_pose, (su_f[idx] + d[idx]).astype(float),
-                  sv_f[idx].astype(float)))
+        pts = _sample_points(samples, idx, fovea_camera, left_pose, right_pose)
         centre = np.asarray(position, float)[:2]
         away = np.hypot(pts[:, 0] - centre[0], pts[:, 1] - centre[1])
         front[idx] = np.nan_to_num(away, nan=0.0) > FOOTPRINT * half + FOOTPRINT_MARGIN_M
@@ -296,6 +292,17 @@ class _Samples:
     smooth: np.ndarray     # the smoothed left fovea
 
 
+def _sample_points(s: _Samples, idx: np.ndarray, fovea_camera: CameraModel,
+                   left_pose: EyePose, right_pose: EyePose) -> np.ndarray:
+    """Robot-frame points (N, 3) of the samples ``idx``, triangulated from their left rays
+    and their matches in the right fovea."""
+    return _triangulate(
+        np.broadcast_to(left_pose.position, (idx.size, 3)), s.rays[idx],
+        np.broadcast_to(right_pose.position, (idx.size, 3)),
+        _rays(fovea_camera, right_pose, (s.su_f[idx] + s.d[idx]).astype(float),
+              s.sv_f[idx].astype(float)))
+
+
 def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
            fovea_camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
            min_pixels: int) -> Layer | None:
@@ -304,15 +311,11 @@ def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
     side = side.copy()
     if int(side.sum()) < MIN_SAMPLES:
         return None
-    sv, su, su_f, sv_f, d, rays = s.sv, s.su, s.su_f, s.sv_f, s.d, s.rays
+    sv, su, su_f, sv_f = s.sv, s.su, s.su_f, s.sv_f
     # Samples on the ground (behind: the ground just beyond the object's top edge, inside
     # its silhouette's last retina pixel; in front: the ground at its foot) are no object.
     idx = np.flatnonzero(side)
-    pts_b = _triangulate(
-        np.broadcast_to(left_pose.position, (idx.size, 3)), rays[idx],
-        np.broadcast_to(right_pose.position, (idx.size, 3)),
-        _rays(fovea_camera, right_pose, (su_f[idx] + d[idx]).astype(float),
-              sv_f[idx].astype(float)))
+    pts_b = _sample_points(s, idx, fovea_camera, left_pose, right_pose)
     ground = np.zeros_like(side)
     ground[idx] = ~(np.nan_to_num(pts_b[:, 2], nan=-1.0) > MIN_HEIGHT_M)
     side &= ~ground
@@ -374,11 +377,7 @@ def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
     mine &= side
     if int(mine.sum()) < MIN_SAMPLES:
         return None
-    pts = _triangulate(
-        np.broadcast_to(left_pose.position, (int(mine.sum()), 3)), rays[mine],
-        np.broadcast_to(right_pose.position, (int(mine.sum()), 3)),
-        _rays(fovea_camera, right_pose, (su_f[mine] + d[mine]).astype(float),
-              sv_f[mine].astype(float)))
+    pts = _sample_points(s, np.flatnonzero(mine), fovea_camera, left_pose, right_pose)
     cam_z = (pts - left_pose.position) @ left_pose.rotation[:, 2]
     cam_z = cam_z[np.isfinite(cam_z)]
     if cam_z.size < MIN_SAMPLES:
