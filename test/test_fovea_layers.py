@@ -18,7 +18,12 @@ from roger_perception.fovea_layers import (
     layer_behind,
     project_layer,
 )
-from roger_perception.perception import Perception, _occluder_beside
+from roger_perception.perception import (
+    Perception,
+    _faces,
+    _occluder_beside,
+    grown_across_greys,
+)
 from roger_perception.perception_node import _complete
 from roger_perception.roi_finder import find_objects
 from roger_sim.config import SimConfig
@@ -35,6 +40,12 @@ PAIR = WorldSpec((NEAR, FAR))
 #: empty, and whose look was stored as an object of nothing).
 EDGE = ObjectSpec("near", "box", (0.351, -0.693), 0.14, 104.0, 1.6, yaw=0.23)
 BEHIND_EDGE = ObjectSpec("far", "cylinder", (0.322, -0.883), 0.09, 68.0, 0.2, yaw=2.33)
+#: A dark 0.10 m box 16 cm in front of a darker 0.09 m prism: fixating the box, the prism
+#: and the top of the box form one ROI and the box's front face another; the box's top
+#: (grey 50 in the retina) and its front face (35, the prism's grey) both meet the first
+#: (a random world's pair that the closed loop never visited).
+DARK_BOX = ObjectSpec("near", "box", (0.789, 0.415), 0.10, 60.0, 1.5, yaw=0.32)
+DARK_PRISM = ObjectSpec("far", "prism", (0.917, 0.516), 0.09, 51.0, 0.8, yaw=0.34)
 
 
 def _look(world: WorldSpec, at: tuple[float, float], seed: int = 0,
@@ -162,6 +173,83 @@ def test_a_nearer_objects_edge_in_the_fixated_roi_is_a_layer_in_front(seed: int)
         own = perception.last_roi_labels == roi.roi_id + 1
         near_in[mode] = int((frame.left_labels[own] == frame.label_names.index("near")).sum())
     assert near_in["paper"] >= 5 and near_in["extended"] <= near_in["paper"] // 2, near_in
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_top_of_a_box_whose_front_face_has_the_far_objects_grey_leaves_its_roi(
+        seed: int) -> None:
+    """Fixating the dark box, its top (joined to the prism behind it) is taken out of the
+    prism's ROI by the face of the box it continues, not by the front face whose grey is
+    the prism's: the prism gets a window of its own in the extended mode; in the paper mode
+    no window shows it."""
+    frame = _look(WorldSpec((DARK_BOX, DARK_PRISM)), DARK_BOX.position, seed=seed)
+    shown = {}
+    for mode in ("extended", "paper"):
+        rois = Perception(PerceptionConfig(features=mode)).process(frame)
+        shown[mode] = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
+                       for r in rois]
+    assert "far" in shown["extended"] and "far" not in shown["paper"], shown
+
+
+@pytest.mark.parametrize("seed", [1, 3, 4])
+def test_a_thin_far_object_above_a_nearer_top_is_parted_by_its_greys(seed: int) -> None:
+    """Fixating the top of the dark box, the prism's ridge above it holds few votes of the
+    fovea (its lower edge's windows take the box's disparity); grown across its own grey,
+    which the box's top does not share, the layer behind is the prism's pixels alone and
+    the prism gets a window of its own in the extended mode; never in the paper mode."""
+    frame = _look(WorldSpec((DARK_BOX, DARK_PRISM)), (0.793, 0.427), seed=seed)
+    far = frame.label_names.index("far")
+    shown = {}
+    for mode in ("extended", "paper"):
+        perception = Perception(PerceptionConfig(features=mode))
+        rois = perception.process(frame)
+        shown[mode] = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
+                       for r in rois]
+        if mode == "extended":
+            (roi,) = [r for r, name in zip(rois, shown[mode], strict=True) if name == "far"]
+            own = perception.last_roi_labels == roi.roi_id + 1
+            assert (frame.left_labels[own] == far).all()       # the prism's pixels only
+            assert len(perception.layers) == 1                 # kept for later frames
+    assert "far" not in shown["paper"], shown
+
+
+def test_a_growth_across_greys_stops_at_a_step_and_is_refused_where_it_drifts() -> None:
+    grey = np.full((6, 8), 0.20, np.float32)
+    grey[:, 4:] = 0.30                                  # two surfaces, 2.3 steps apart
+    mask = np.ones(grey.shape, bool)
+    start = np.zeros(grey.shape, bool)
+    start[2, 1] = True
+    grown = grown_across_greys(start, mask, grey, step=0.044, reference=0.20)
+    assert grown is not None and grown[:, :4].all() and not grown[:, 4:].any()
+    # One grey shaded across both (a ramp of a fifth of a step per column): the growth
+    # stops by drifting two steps from its reference, not at a step, and is refused.
+    ramp = (0.20 + 0.009 * np.arange(16, dtype=np.float32))[None, :].repeat(6, axis=0)
+    start = np.zeros(ramp.shape, bool)
+    start[2, 0] = True
+    assert grown_across_greys(start, np.ones(ramp.shape, bool), ramp, 0.044, 0.20) is None
+    # Everything grown (nothing left to tell it from) is refused; so is an edge with no
+    # pair within the mask where one is needed.
+    one = np.zeros(grey.shape, bool)
+    one[2, 1] = True
+    assert grown_across_greys(one, mask, np.full(grey.shape, 0.2, np.float32), 0.044,
+                              0.2) is None
+    island = np.zeros(grey.shape, bool)
+    island[1:3, 1:3] = True
+    rest = np.zeros(grey.shape, bool)
+    rest[4:, 5:] = True
+    assert grown_across_greys(island, island | rest, grey, 0.044, 0.20) is not None
+    assert grown_across_greys(island, island | rest, grey, 0.044, 0.20,
+                              need_edge=True) is None
+
+
+def test_an_occluders_faces_are_two_greys_a_step_apart_each_a_quarter_of_its_pixels() -> None:
+    rng = np.random.default_rng(0)
+    top, front = 0.20 + 0.005 * rng.standard_normal(14), 0.14 + 0.005 * rng.standard_normal(16)
+    faces = _faces(np.concatenate([top, front]), step=0.044)
+    assert len(faces) == 2 and abs(faces[0] - 0.14) < 0.01 and abs(faces[1] - 0.20) < 0.01
+    # A stray pixel of another grey is no face; nor are two greys less than a step apart.
+    assert len(_faces(np.concatenate([top, [0.05, 0.06]]), step=0.044)) == 1
+    assert len(_faces(np.concatenate([top, top + 0.03]), step=0.044)) == 1
 
 
 def test_the_far_object_gets_a_roi_and_a_window_of_its_own_in_later_frames_too() -> None:

@@ -311,14 +311,23 @@ class Perception:
         camera = frame.camera
         if (frame.fovea is not None and frame.fovea_right is not None
                 and frame.fovea_camera is not None):
+            greys: tuple[float, float] | None = None
             for obj in seen:
                 if obj.cut or not fixated(obj.blob.mask, obj.blob.bbox, camera):
                     continue
+                if greys is None:
+                    greys = self._grey_step(frame, seen)
+                step, ground_max = greys
+
+                def grow(layer: np.ndarray, room: np.ndarray,
+                         obj: SeenObject = obj) -> np.ndarray | None:
+                    return behind_extent(layer, obj, frame.left, step, ground_max, room=room)
+
                 behind, front = fixated_layers(
                     frame.fovea, frame.fovea_right, frame.fovea_camera, camera,
                     frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
                     obj.depth, obj.width_px * obj.depth / camera.focal_px,
-                    cfg.min_roi_pixels, position=obj.position)
+                    cfg.min_roi_pixels, position=obj.position, grow=grow)
                 if front is not None:
                     front = self._front_layer(front, obj, seen, frame)
                 self.layers.put(obj.position, behind)
@@ -365,19 +374,28 @@ class Perception:
         occluder = _occluder_beside(found, obj, seen, camera)
         if occluder is None:
             return None
+        step, ground_max = self._grey_step(frame, seen)
+        grown = front_extent(obj, occluder, frame.left, step, ground_max, seeds=found.mask,
+                             own=found.own)
+        if grown is None or int((obj.blob.mask & ~grown).sum()) < self.config.min_roi_pixels:
+            return None
+        return Layer(mask=grown, points=retina_points(camera, frame.left_pose, grown,
+                                                      obj.blob.bbox, found.depth),
+                     depth=found.depth, samples=found.samples, front=True)
+
+    @staticmethod
+    def _grey_step(frame: StereoFrame, seen: Sequence[SeenObject]) -> tuple[float, float]:
+        """(step, ground_max) of the left retina: two 4-neighbours of one surface differ by
+        less than ``STEP_SIGMAS`` sqrt 2 times its own pixel noise, measured on the ground
+        off every ROI (``segmentation.ground_level``); a pixel no brighter than the ground's
+        level plus ``GROUND_SIGMAS`` times it is ground."""
         fg = np.zeros(frame.left.shape, np.uint8)
         for o in seen:
             u0, v0, u1, v1 = o.blob.bbox
             fg[v0:v1, u0:u1] |= o.blob.mask.astype(np.uint8)
         level, spread = ground_level(np.asarray(frame.left, np.float32), fg)
         spread = max(spread, 1e-4)
-        grown = front_extent(obj, occluder, frame.left, STEP_SIGMAS * math.sqrt(2.0) * spread,
-                             level + GROUND_SIGMAS * spread)
-        if grown is None or int((obj.blob.mask & ~grown).sum()) < self.config.min_roi_pixels:
-            return None
-        return Layer(mask=grown, points=retina_points(camera, frame.left_pose, grown,
-                                                      obj.blob.bbox, found.depth),
-                     depth=found.depth, samples=found.samples, front=True)
+        return STEP_SIGMAS * math.sqrt(2.0) * spread, level + GROUND_SIGMAS * spread
 
     def _kept_part(self, layers: Layers, obj: SeenObject, frame: StereoFrame,
                    min_layer: int) -> tuple[np.ndarray, float] | None:
@@ -500,16 +518,63 @@ STEP_SIGMAS: float = 6.0
 GROUND_SIGMAS: float = 3.0
 
 
-def front_extent(obj: SeenObject, occluder: SeenObject, image: np.ndarray, step: float,
-                 ground_max: float) -> np.ndarray | None:
-    """The pixels of ``obj`` that are the nearer ``occluder``'s edge: grown from those of
-    its pixels within ``OCCLUDER_GAP_PX`` of an occluder pixel whose grey is within
-    ``step`` of the occluder's there, through 4-neighbours within ``step`` of each other
+def grown_across_greys(start: np.ndarray, mask: np.ndarray, grey: np.ndarray, step: float,
+                       reference: float, drift: float = 2.0,
+                       need_edge: bool = False) -> np.ndarray | None:
+    """``start`` grown within ``mask`` through 4-neighbours within ``step`` of each other
     (one surface's shading), never across a larger step (two greys that are not one
-    surface's) nor farther than two steps from the occluder's grey where it meets the ROI;
-    None when nothing grows, or when half of ``obj`` or more would (the two greys cannot
-    be told apart). Pixels no brighter than ``ground_max`` (the ground's level plus its
-    noise: both ROIs hold some ground at their feet) neither seed nor grow it."""
+    surface's) nor farther than ``drift`` steps from ``reference`` (the surface's grey).
+    None when nothing grows or all of ``mask`` does, or when fewer than half of the
+    4-neighbour pairs across the grown part's edge within ``mask`` are a step (the growth
+    stopped by drifting across one grey: the two greys cannot be told apart; no pair at
+    all: ground between them, told apart, unless ``need_edge``)."""
+    h, w = mask.shape
+    grown = start & mask
+    stack = [(int(r), int(c)) for r, c in zip(*np.nonzero(grown), strict=True)]
+    while stack:
+        r, c = stack.pop()
+        for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            nr, nc = r + dr, c + dc
+            if (0 <= nr < h and 0 <= nc < w and mask[nr, nc] and not grown[nr, nc]
+                    and abs(grey[nr, nc] - grey[r, c]) < step
+                    and abs(grey[nr, nc] - reference) < drift * step):
+                grown[nr, nc] = True
+                stack.append((nr, nc))
+    rest = mask & ~grown
+    if not grown.any() or not rest.any():
+        return None
+    steps = pairs = 0
+    for a, b, ga, gb in ((grown[:, :-1], rest[:, 1:], grey[:, :-1], grey[:, 1:]),
+                         (rest[:, :-1], grown[:, 1:], grey[:, :-1], grey[:, 1:]),
+                         (grown[:-1, :], rest[1:, :], grey[:-1, :], grey[1:, :]),
+                         (rest[:-1, :], grown[1:, :], grey[:-1, :], grey[1:, :])):
+        across = a & b
+        pairs += int(across.sum())
+        steps += int((np.abs(ga - gb)[across] >= step).sum())
+    if 2 * steps < pairs or (need_edge and pairs == 0):
+        return None
+    return grown
+
+
+def front_extent(obj: SeenObject, occluder: SeenObject, image: np.ndarray, step: float,
+                 ground_max: float, seeds: np.ndarray | None = None,
+                 own: np.ndarray | None = None) -> np.ndarray | None:
+    """The pixels of ``obj`` that are the nearer ``occluder``'s edge, or None.
+
+    The occluder's pixels within ``OCCLUDER_GAP_PX`` of the ROI's are split into its
+    faces' greys (``_faces``); the face taken is the one most of ``seeds`` (the layer the
+    fovea found in front) lies within ``step`` of. The extent is grown from the pixels of
+    ``seeds`` beside occluder pixels of that face and within ``step`` of its grey, through
+    4-neighbours within ``step`` of each other (one surface's shading), never across a
+    larger step (two greys that are not one surface's) nor farther than two steps from the
+    face's grey. None when nothing grows or everything does, when fewer than half of the
+    4-neighbour pairs across the grown part's edge within the ROI are a step (the growth
+    stopped by drifting across one grey: the two greys cannot be told apart), or when the
+    fovea gave most of it to the fixated object's own surface (``own``). Pixels no
+    brighter than ``ground_max`` (the ground's level plus its noise: both ROIs hold some
+    ground at their feet) neither seed nor grow it. Without ``seeds`` every pixel of the
+    ROI may seed it.
+    """
     u0, v0, u1, v1 = obj.blob.bbox
     img = np.asarray(image, np.float32)
     grey = img[v0:v1, u0:u1]
@@ -530,34 +595,85 @@ def front_extent(obj: SeenObject, occluder: SeenObject, image: np.ndarray, step:
     rr0, rr1 = max(v0 - g, 0), min(v1 + g, img.shape[0])
     cc0, cc1 = max(u0 - g, 0), min(u1 + g, img.shape[1])
     around[rr0 - v0 + g:rr1 - v0 + g, cc0 - u0 + g:cc1 - u0 + g] = img[rr0:rr1, cc0:cc1]
-    # The occluder's grey where it meets the ROI: the median of its pixels within g of
-    # the ROI's (a stray pixel of the fixated object in the occluder's ROI does not move it).
+    # The occluder's face the edge continues: its pixels within g of the ROI's are split
+    # into its faces' greys (``_faces``: a box's top and its front face may both meet the
+    # ROI, a step apart; a stray pixel of the fixated object in the occluder's ROI is no
+    # face); the one most of the layer found in the fovea (``seeds``) lies within a step
+    # of.
     band = occ & (cv2.dilate(np.pad(mask, g).astype(np.uint8),
                              np.ones((2 * g + 1, 2 * g + 1), np.uint8)) > 0)
     if not band.any():
         return None
-    occ_grey = float(np.median(around[band]))
-    grown = np.zeros(mask.shape, bool)
-    stack: list[tuple[int, int]] = []
-    for r, c in zip(*np.nonzero(mask), strict=True):
-        if occ[r:r + 2 * g + 1, c:c + 2 * g + 1].any() and abs(grey[r, c] - occ_grey) < step:
-            grown[r, c] = True
-            stack.append((int(r), int(c)))
-    # Grown through one surface's shading, never drifting from the occluder's grey by more
-    # than two steps.
-    while stack:
-        r, c = stack.pop()
-        for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-            nr, nc = r + dr, c + dc
-            if (0 <= nr < h and 0 <= nc < w and mask[nr, nc] and not grown[nr, nc]
-                    and abs(grey[nr, nc] - grey[r, c]) < step
-                    and abs(grey[nr, nc] - occ_grey) < 2 * step):
-                grown[nr, nc] = True
-                stack.append((nr, nc))
-    n = int(grown.sum())
-    if n == 0 or 2 * n >= int(obj.blob.mask.sum()):
+    seedable = mask if seeds is None else mask & seeds
+    faces = _faces(around[band], step)
+    face = max(faces, key=lambda f: int((np.abs(grey[seedable] - f) < step).sum()))
+    # Seeds: those pixels beside (within g) occluder pixels of that face, their grey
+    # within a step of it.
+    of_face = occ & (np.abs(around - face) < step)
+    start = np.zeros(mask.shape, bool)
+    for r, c in zip(*np.nonzero(seedable), strict=True):
+        if of_face[r:r + 2 * g + 1, c:c + 2 * g + 1].any() and abs(grey[r, c] - face) < step:
+            start[r, c] = True
+    grown = grown_across_greys(start, mask, grey, step, face)
+    if grown is None:
+        return None
+    # Nor where the fovea saw the fixated object's own surface on most of it.
+    if own is not None and 2 * int((grown & own).sum()) > int(grown.sum()):
         return None
     return grown
+
+
+def behind_extent(layer: np.ndarray, obj: SeenObject, image: np.ndarray, step: float,
+                  ground_max: float, room: np.ndarray | None = None) -> np.ndarray | None:
+    """The pixels of ``obj`` of the far object's surface that the fovea's layer behind
+    (``layer``, its voted retina pixels within ``obj``'s bbox) lies on: grown from them
+    across one surface's greys within ``room`` (``grown_across_greys``, the reference their
+    median grey; ``room``: the pixels the fovea saw and did not give the fixated object's
+    own surface, so a grey the two objects share carries it no farther than the fovea
+    allows), or None where the greys cannot tell the two objects apart there. Ground
+    pixels (no brighter than ``ground_max``) neither seed nor grow it."""
+    u0, v0, u1, v1 = obj.blob.bbox
+    grey = np.asarray(image, np.float32)[v0:v1, u0:u1]
+    mask = obj.blob.mask & (grey > ground_max)
+    if room is not None:
+        mask &= room
+    start = layer & mask
+    if not start.any():
+        return None
+    # Seeds of one surface: those within a step of their median grey (a false vote on
+    # the nearer top, a step brighter or darker, seeds nothing); grown no farther than a
+    # step from it (the pixels the vote missed at the far object's edge are of its grey;
+    # the edge's mixed pixels would bridge two greys over two steps).
+    # Its edge within the room must show where the greys part it (no such pair: the
+    # fovea's own surface all around it, a false vote on one face).
+    reference = float(np.median(grey[start]))
+    start &= np.abs(grey - reference) < step
+    return grown_across_greys(start, mask, grey, step, reference, drift=1.0, need_edge=True)
+
+
+#: A face of the occluder holds at least this share of its pixels beside the fixated ROI
+#: (a convex object shows at most three faces).
+FACE_SHARE: float = 0.25
+
+
+def _faces(greys: np.ndarray, step: float) -> list[float]:
+    """The greys of the occluder's faces among ``greys`` (its pixels beside the fixated
+    ROI): the two classes of the split that leaves the least spread within them (Otsu's),
+    when their medians lie ``step`` or more apart and each holds at least ``FACE_SHARE``
+    of the pixels, the larger first; else their median."""
+    g = np.sort(np.asarray(greys, np.float64))
+    n = g.size
+    if n >= 2:
+        k = np.arange(1, n)
+        c1, c2 = np.cumsum(g), np.cumsum(g * g)
+        within = (c2[k - 1] - c1[k - 1] ** 2 / k) \
+            + ((c2[-1] - c2[k - 1]) - (c1[-1] - c1[k - 1]) ** 2 / (n - k))
+        cut = int(k[np.argmin(within)])
+        low, high = g[:cut], g[cut:]
+        if (min(low.size, high.size) >= FACE_SHARE * n
+                and float(np.median(high) - np.median(low)) >= step):
+            return [float(np.median(x)) for x in sorted((low, high), key=lambda x: -x.size)]
+    return [float(np.median(g))]
 
 
 def _part(obj: SeenObject, mask: np.ndarray, depth: float, frame: StereoFrame, bg: float
