@@ -53,7 +53,7 @@ nearer object's own ROI beside it and takes its extent from the greys
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -68,8 +68,6 @@ HALF: int = 3
 RANGE: int = 16
 #: A pixel is matched where the smoothed fovea's horizontal gradient exceeds this.
 GRADIENT: float = 0.02
-#: Extends a layer behind's voted retina pixels within the pixels it may take (``fixated_layers``).
-Grow = Callable[[np.ndarray, np.ndarray], np.ndarray | None]
 #: A sample lies behind the fixated object when its disparity falls short of the object's
 #: far bound by more than this, fovea pixels.
 MARGIN_PX: float = 1.5
@@ -207,8 +205,7 @@ def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
                    fovea_camera: CameraModel, camera: CameraModel, left_pose: EyePose,
                    right_pose: EyePose, mask: np.ndarray, bbox: tuple[int, int, int, int],
                    depth: float, width_m: float, min_pixels: int,
-                   position: Sequence[float] | None = None,
-                   grow: Grow | None = None
+                   position: Sequence[float] | None = None
                    ) -> tuple[Layer | None, Layer | None]:
     """The parts of a fixated ROI that stand behind it and in front of it (module
     docstring): (behind, in front), each None when there is none.
@@ -225,11 +222,6 @@ def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
         min_pixels: Least retina pixels of the layer behind and of what a layer leaves.
         position: The ROI's robot-frame position; without it no layer in front is
             looked for.
-        grow: Extends the layer behind's retina pixels (voted, within the ROI's bbox)
-            across one surface's greys within the pixels it may take (its second
-            argument: those the fovea saw and did not give the fixated object's own
-            surface), or None where it cannot (``perception.behind_extent``); without it
-            the vote alone.
     """
     mapped = silhouette_in_fovea(mask, bbox, camera, fovea_camera, margin=HALF + 1)
     if mapped is None or not np.isfinite(depth) or depth <= 0:
@@ -282,7 +274,7 @@ def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
         layer_front = _layer(samples, front, True, mask, fovea_camera, left_pose, right_pose,
                              min_pixels)
     return (_layer(samples, behind, False, mask, fovea_camera, left_pose, right_pose,
-                   min_pixels, grow=grow), layer_front)
+                   min_pixels), layer_front)
 
 
 @dataclass(frozen=True)
@@ -316,10 +308,9 @@ def _sample_points(s: _Samples, idx: np.ndarray, fovea_camera: CameraModel,
 
 def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
            fovea_camera: CameraModel, left_pose: EyePose, right_pose: EyePose,
-           min_pixels: int, grow: Grow | None = None
-           ) -> Layer | None:
+           min_pixels: int) -> Layer | None:
     """The layer of the samples ``side`` (behind the fixated object, or in ``front`` of
-    it), or None; ``grow`` extends the voted pixels of a layer behind (``fixated_layers``)."""
+    it), or None."""
     side = side.copy()
     if int(side.sum()) < MIN_SAMPLES:
         return None
@@ -369,23 +360,12 @@ def _layer(s: _Samples, side: np.ndarray, front: bool, mask: np.ndarray,
         mine_r = own_r & ~layer
         layer |= mask & (cv2.dilate(layer.astype(np.uint8), _CROSS) > 0) & ~mine_r
     else:
-        # A thin far object (a prism's ridge above the nearer top) holds few votes: the
-        # samples on its lower edge take the nearer object's disparity (boundary
-        # fattening) and the watershed gives them to it. Where its greys say where it ends
-        # (``grow``), the layer is those pixels: the occluding edge lies on the grey step.
-        # It grows only over pixels the fovea saw and did not give the fixated object's
-        # own surface.
-        seen_r = (count > 0) & ~own_r
-        grown = grow(layer, seen_r) if grow is not None and layer.any() else None
-        if grown is not None:
-            layer = layer | grown
-        else:
-            layer = cv2.morphologyEx(layer.astype(np.uint8), cv2.MORPH_OPEN,
-                                     np.ones((2, 2), np.uint8)) > 0
-            # A retina pixel on the boundary holds both; the occluding edge is the nearer
-            # object's.
-            near = (mask & ~layer & (count > 0) & (votes_own > VOTE * count)).astype(np.uint8)
-            layer &= ~(cv2.dilate(near, _CROSS) > 0)
+        layer = cv2.morphologyEx(layer.astype(np.uint8), cv2.MORPH_OPEN,
+                                 np.ones((2, 2), np.uint8)) > 0
+        # A retina pixel on the boundary holds both; the occluding edge is the nearer
+        # object's.
+        near = (mask & ~layer & (count > 0) & (votes_own > VOTE * count)).astype(np.uint8)
+        layer &= ~(cv2.dilate(near, _CROSS) > 0)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(layer.astype(np.uint8), connectivity=4)
     if n <= 1:
         return None

@@ -311,23 +311,14 @@ class Perception:
         camera = frame.camera
         if (frame.fovea is not None and frame.fovea_right is not None
                 and frame.fovea_camera is not None):
-            greys: tuple[float, float] | None = None
             for obj in seen:
                 if obj.cut or not fixated(obj.blob.mask, obj.blob.bbox, camera):
                     continue
-                if greys is None:
-                    greys = self._grey_step(frame, seen)
-                step, ground_max = greys
-
-                def grow(layer: np.ndarray, room: np.ndarray,
-                         obj: SeenObject = obj) -> np.ndarray | None:
-                    return behind_extent(layer, obj, frame.left, step, ground_max, room=room)
-
                 behind, front = fixated_layers(
                     frame.fovea, frame.fovea_right, frame.fovea_camera, camera,
                     frame.left_pose, frame.right_pose, obj.blob.mask, obj.blob.bbox,
                     obj.depth, obj.width_px * obj.depth / camera.focal_px,
-                    cfg.min_roi_pixels, position=obj.position, grow=grow)
+                    cfg.min_roi_pixels, position=obj.position)
                 if front is not None:
                     front = self._front_layer(front, obj, seen, frame)
                 self.layers.put(obj.position, behind)
@@ -519,15 +510,14 @@ GROUND_SIGMAS: float = 3.0
 
 
 def grown_across_greys(start: np.ndarray, mask: np.ndarray, grey: np.ndarray, step: float,
-                       reference: float, drift: float = 2.0,
-                       need_edge: bool = False) -> np.ndarray | None:
+                       reference: float) -> np.ndarray | None:
     """``start`` grown within ``mask`` through 4-neighbours within ``step`` of each other
     (one surface's shading), never across a larger step (two greys that are not one
-    surface's) nor farther than ``drift`` steps from ``reference`` (the surface's grey).
+    surface's) nor farther than two steps from ``reference`` (the surface's grey).
     None when nothing grows or all of ``mask`` does, or when fewer than half of the
     4-neighbour pairs across the grown part's edge within ``mask`` are a step (the growth
     stopped by drifting across one grey: the two greys cannot be told apart; no pair at
-    all: ground between them, told apart, unless ``need_edge``)."""
+    all: ground between them, told apart)."""
     h, w = mask.shape
     grown = start & mask
     stack = [(int(r), int(c)) for r, c in zip(*np.nonzero(grown), strict=True)]
@@ -537,7 +527,7 @@ def grown_across_greys(start: np.ndarray, mask: np.ndarray, grey: np.ndarray, st
             nr, nc = r + dr, c + dc
             if (0 <= nr < h and 0 <= nc < w and mask[nr, nc] and not grown[nr, nc]
                     and abs(grey[nr, nc] - grey[r, c]) < step
-                    and abs(grey[nr, nc] - reference) < drift * step):
+                    and abs(grey[nr, nc] - reference) < 2 * step):
                 grown[nr, nc] = True
                 stack.append((nr, nc))
     rest = mask & ~grown
@@ -551,7 +541,7 @@ def grown_across_greys(start: np.ndarray, mask: np.ndarray, grey: np.ndarray, st
         across = a & b
         pairs += int(across.sum())
         steps += int((np.abs(ga - gb)[across] >= step).sum())
-    if 2 * steps < pairs or (need_edge and pairs == 0):
+    if 2 * steps < pairs:
         return None
     return grown
 
@@ -621,34 +611,6 @@ def front_extent(obj: SeenObject, occluder: SeenObject, image: np.ndarray, step:
     if own is not None and 2 * int((grown & own).sum()) > int(grown.sum()):
         return None
     return grown
-
-
-def behind_extent(layer: np.ndarray, obj: SeenObject, image: np.ndarray, step: float,
-                  ground_max: float, room: np.ndarray | None = None) -> np.ndarray | None:
-    """The pixels of ``obj`` of the far object's surface that the fovea's layer behind
-    (``layer``, its voted retina pixels within ``obj``'s bbox) lies on: grown from them
-    across one surface's greys within ``room`` (``grown_across_greys``, the reference their
-    median grey; ``room``: the pixels the fovea saw and did not give the fixated object's
-    own surface, so a grey the two objects share carries it no farther than the fovea
-    allows), or None where the greys cannot tell the two objects apart there. Ground
-    pixels (no brighter than ``ground_max``) neither seed nor grow it."""
-    u0, v0, u1, v1 = obj.blob.bbox
-    grey = np.asarray(image, np.float32)[v0:v1, u0:u1]
-    mask = obj.blob.mask & (grey > ground_max)
-    if room is not None:
-        mask &= room
-    start = layer & mask
-    if not start.any():
-        return None
-    # Seeds of one surface: those within a step of their median grey (a false vote on
-    # the nearer top, a step brighter or darker, seeds nothing); grown no farther than a
-    # step from it (the pixels the vote missed at the far object's edge are of its grey;
-    # the edge's mixed pixels would bridge two greys over two steps).
-    # Its edge within the room must show where the greys part it (no such pair: the
-    # fovea's own surface all around it, a false vote on one face).
-    reference = float(np.median(grey[start]))
-    start &= np.abs(grey - reference) < step
-    return grown_across_greys(start, mask, grey, step, reference, drift=1.0, need_edge=True)
 
 
 #: A face of the occluder holds at least this share of its pixels beside the fixated ROI
