@@ -651,6 +651,34 @@ def test_refinement_reaches_one_acceptance_radius_and_does_not_chain() -> None:
     assert memory.stats.refinements == 1
 
 
+def test_a_feature_only_refined_looks_know_does_not_veto() -> None:
+    """An address stored without D (its object's silhouette cut by a nearer one) is
+    identified from a look that knows D, which refines it. That one D is unvouched (the
+    refinement was accepted on the features the stored looks know): a later look whose D
+    differs from it by more than D's veto must not be turned down for it (yaw 10122's box
+    c07_0: D 0.163 against a refined 0.111, vetoed and stored a second time;
+    docs/memory.md). The refined look keeps its D for the network's distance."""
+    d = FEATURE_NAMES.index("D")
+    without_d = ALL_KNOWN.copy()
+    without_d[d] = False
+    rng = np.random.default_rng(31)
+    a = _distinct_patterns(1, seed=23)[0]
+    memory = AssociativeMemory(CONFIG, seed=9)
+    memory.store(a, without_d, focus_id=1)
+    seen = _look(a, rng, 0.3)
+    seen[d] = a[d] - 0.05
+    first = memory.match(seen, ALL_KNOWN, final_trial=True, focus_id=2)
+    assert (first.outcome, first.address) == (MatchOutcome.IDENTIFIED, 0)
+    assert memory.stats.refinements == 1
+    assert memory.exemplar_known(0)[:, d].tolist() == [False, True]
+    again = _look(a, rng, 0.3)
+    again[d] = a[d] + 0.05  # 0.10 from the refined look's D: beyond D's veto
+    assert abs(again[d] - seen[d]) > memory.config.veto[d]
+    second = memory.match(again, ALL_KNOWN, final_trial=True, focus_id=3)
+    assert (second.outcome, second.address) == (MatchOutcome.IDENTIFIED, 0)
+    assert memory.stats.vetoes == 0
+
+
 def test_refinement_is_capped() -> None:
     x = _distinct_patterns(1, seed=18)[0]
     memory = AssociativeMemory(MemoryConfig.for_mode("paper", refine_looks=3), seed=6)

@@ -370,8 +370,8 @@ class AssociativeMemory:
                 ) -> tuple[bool, float]:
         """Whether the veto turns ``address`` down, and the RMS z-distance to its nearest
         look. With ``veto_any_look`` the address passes when one of its looks that can
-        answer the query (``d2`` finite) and compares every feature some look of the
-        address compares with the query is within the veto in every common feature; else
+        answer the query (``d2`` finite) and compares every feature some stored look of
+        the address compares with the query is within the veto in every common feature; else
         its nearest look decides. With ``crease_found_veto`` a query that found a crease
         and felt no flat top's rim (TR unknown) is turned down by an address none of
         whose looks that measured TC found one."""
@@ -386,9 +386,12 @@ class AssociativeMemory:
                 return True, float(np.sqrt(d2[nearest]))
         looks = [nearest]
         if self._config.veto_any_look:
-            # Only a look that compares every feature some look of the address compares
-            # may let it pass: one that never measured the feature that vetoes cannot.
-            comparable = self._known[mine].any(axis=0) & k
+            # Only a look that compares every feature some stored look of the address
+            # compares may let it pass: one that never measured the feature that vetoes
+            # cannot. A feature only refined looks know is no such feature: a refinement is
+            # accepted on the features its stored looks know, so that one is unvouched.
+            stored = mine[self._stored[mine]]
+            comparable = self._known[stored if len(stored) else mine].any(axis=0) & k
             full = np.all(self._known[mine] | ~comparable, axis=1)
             looks = mine[np.isfinite(d2[mine]) & full]
         vetoed = True
