@@ -10,7 +10,12 @@ whose category is already at an address (ground truth, read only to score), it p
 - the memory's own distance from the final look to that address (``distances``) against
   the acceptance distance;
 - the features beyond their veto, and the largest |z| (the memory's z: the difference
-  over sqrt 2 times the category scale);
+  over sqrt 2 times the category scale), as compared with the first address's nearest
+  look;
+- what the memory itself decided on that final look (``AssociativeMemory.decide``): the
+  network's winner (an address or the novel unit) and its share, and whether the veto
+  (``veto_any_look``, against every look of the winner) turned it down; the nearest-look
+  reading above can differ from it;
 - the features the look did not know.
 
 Then a summary per mode: stores of a category already stored, and how many of them had a
@@ -39,7 +44,7 @@ import yaml
 from roger_common.types import FeatureMode, MemoryOp, MemoryRequest, feature_names
 from roger_experiments.core_loop import run_core
 from roger_experiments.results import read_cycles
-from roger_memory.memory import AssociativeMemory
+from roger_memory.memory import AssociativeMemory, Decision
 from roger_sim.world import parse_world
 
 
@@ -60,6 +65,9 @@ class Again:
     unknown: list[str]
     first_weighed: bool
     look_weighed: bool
+    winner: int = -1
+    share: float = 0.0
+    vetoed_by_memory: bool = False
 
 
 @dataclass
@@ -70,22 +78,32 @@ class Summary:
 
 
 @contextmanager
-def watched() -> Iterator[list[tuple[MemoryRequest, object, np.ndarray]]]:
-    """Every request the memory handles, with its result and the distances before it."""
-    log: list[tuple[MemoryRequest, object, np.ndarray]] = []
-    original = AssociativeMemory.handle
+def watched() -> Iterator[list[tuple[MemoryRequest, object, np.ndarray, Decision | None]]]:
+    """Every request the memory handles, with its result, the distances before it and
+    the memory's own decision (None for a store)."""
+    log: list[tuple[MemoryRequest, object, np.ndarray, Decision | None]] = []
+    original, original_decide = AssociativeMemory.handle, AssociativeMemory.decide
+    decided: list[Decision] = []
+
+    def decide(self: AssociativeMemory, *args, **kwargs):  # type: ignore[no-untyped-def]
+        decision = original_decide(self, *args, **kwargs)
+        decided.append(decision)
+        return decision
 
     def handle(self: AssociativeMemory, req: MemoryRequest):  # type: ignore[no-untyped-def]
         before = self.distances(req.features, req.known) if self.size else np.zeros(0)
+        decided.clear()
         result = original(self, req)
-        log.append((req, result, before))
+        log.append((req, result, before, decided[-1] if decided else None))
         return result
 
     AssociativeMemory.handle = handle  # type: ignore[method-assign]
+    AssociativeMemory.decide = decide  # type: ignore[method-assign]
     try:
         yield log
     finally:
         AssociativeMemory.handle = original  # type: ignore[method-assign]
+        AssociativeMemory.decide = original_decide  # type: ignore[method-assign]
 
 
 def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
@@ -108,7 +126,7 @@ def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
                         for r in rows if r["outcome"] == "stored"}
     first_of: dict[str, int] = {}
     summary.runs += 1
-    for i, (req, result, before) in enumerate(log):
+    for i, (req, result, _, _) in enumerate(log):
         if req.op is not MemoryOp.STORE:
             continue
         summary.stores += 1
@@ -123,6 +141,7 @@ def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
             j -= 1
         look = log[j][0]
         distance = float(log[j][2][first]) if first < len(log[j][2]) else float("nan")
+        decision = log[j][3]
         looks, known = memory.exemplars(first), memory.exemplar_known(first)
         # The nearest look of the first address, as the veto compares.
         common = known & look.known[None, :]
@@ -137,7 +156,9 @@ def one_run(world_path: Path, policy: str, seed: int, mode: str, cycles: int,
             world_path.stem, policy, seed, cat, address, first, distance,
             float(cfg.identify_distance), vetoed, top,
             [names[f] for f in range(len(names)) if not look.known[f]],
-            bool(known[:, w_index].any()), bool(look.known[w_index])))
+            bool(known[:, w_index].any()), bool(look.known[w_index]),
+            decision.winner if decision else -1, decision.share if decision else 0.0,
+            bool(decision and decision.vetoed)))
 
 
 def main() -> None:
@@ -159,7 +180,10 @@ def main() -> None:
         for a in summary.again:
             print(f"- {a.world} {a.policy} seed {a.seed}: {a.category} at {a.address} "
                   f"(first {a.first}, weighed {a.first_weighed}; look weighed "
-                  f"{a.look_weighed}); distance {a.distance:.2f} (tau {a.tau:.2f}); "
+                  f"{a.look_weighed}); memory: winner "
+                  f"{'novel' if a.winner < 0 else a.winner} (share {a.share:.2f})"
+                  f"{', vetoed' if a.vetoed_by_memory else ''}; "
+                  f"distance {a.distance:.2f} (tau {a.tau:.2f}); "
                   f"vetoed by {a.vetoed or '-'}; largest |z| "
                   + ", ".join(f"{n} {v:.1f}" for n, v in a.top)
                   + (f"; unknown {a.unknown}" if a.unknown else ""))
@@ -167,7 +191,8 @@ def main() -> None:
         print(f"vetoed: {sum(bool(a.vetoed) for a in again)}; beyond tau, no veto: "
               f"{sum(not a.vetoed and a.distance > a.tau for a in again)}; within tau, no "
               f"veto: {sum(not a.vetoed and a.distance <= a.tau for a in again)}; first "
-              f"address never weighed: {sum(not a.first_weighed for a in again)}")
+              f"address never weighed: {sum(not a.first_weighed for a in again)}; vetoed "
+              f"by the memory itself: {sum(a.vetoed_by_memory for a in again)}")
         vetoes = collections.Counter(f for a in again for f in a.vetoed)
         tops = collections.Counter(a.top[0][0] for a in again if a.top)
         print(f"features vetoed: {dict(vetoes.most_common())}; largest |z|: "
