@@ -32,6 +32,18 @@ For the ROI the eyes fixate (``fovea.fixated``):
    consistent samples behind, at least ``min_pixels`` retina pixels, and leaves the
    nearer object at least as many.
 
+**The nearest object's far bound.** Step 2 takes the window of disparities that holds the
+most samples for the fixated surface. Where a far object behind shows more textured edge
+than the nearer one (a box's lit top that renders like the cylinder behind it: one ROI in
+both retinas), that window is the far object's, and the nearer one lies within the merged
+ROI's footprint, so neither a layer behind nor one in front is found. Then
+(``_beyond_nearest``) the samples above the ground are parted in two by disparity (Otsu's
+split); where each part holds ``NEAR_SPLIT_SHARE`` of them and the farther part's
+``FAR_QUANTILE`` lies beyond the nearer part's front (its ``NEAR_FRONT`` quantile) plus a
+whole object's depth (twice the half-width bound of step 2, the depth of a box turned 45
+degrees) and ``MARGIN_PX``, the samples beyond that bound are the layer behind (step 3).
+A single object's samples never reach beyond its own front plus its depth.
+
 The layer's pixels are placed in 3-D at the median depth of its samples (triangulated from
 the two eye poses, never the simulator's objects). Perception keeps them by position
 (``Layers``): in later frames, from any view, a ROI holding a kept layer's projection is
@@ -88,6 +100,12 @@ CONSISTENCY_PX: int = 1
 FOOTPRINT: float = float(np.sqrt(2.0))
 #: ... plus this, metres (the ROI's centre is the plane sweep's, a step of a few cm).
 FOOTPRINT_MARGIN_M: float = 0.03
+#: Two groups of samples are two objects only when each holds this share of them.
+NEAR_SPLIT_SHARE: float = 0.2
+#: The near group's front: this quantile of its disparities.
+NEAR_FRONT: float = 0.1
+#: The far group lies beyond the near one's far bound when this quantile of it does.
+FAR_QUANTILE: float = 0.25
 
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
@@ -273,8 +291,54 @@ def fixated_layers(left_fovea: np.ndarray, right_fovea: np.ndarray,
         front[idx] = np.nan_to_num(away, nan=0.0) > FOOTPRINT * half + FOOTPRINT_MARGIN_M
         layer_front = _layer(samples, front, True, mask, fovea_camera, left_pose, right_pose,
                              min_pixels)
-    return (_layer(samples, behind, False, mask, fovea_camera, left_pose, right_pose,
-                   min_pixels), layer_front)
+    layer_behind_ = _layer(samples, behind, False, mask, fovea_camera, left_pose, right_pose,
+                           min_pixels)
+    if layer_behind_ is None and layer_front is None:
+        # The most samples may be the far object's (its surface taken for the fixated
+        # one's): the samples beyond the nearest object, when they form a group of their own.
+        beyond = _beyond_nearest(samples, extent, fovea_camera, left_pose, right_pose)
+        if beyond is not None:
+            layer_behind_ = _layer(samples, beyond, False, mask, fovea_camera, left_pose,
+                                   right_pose, min_pixels)
+    return layer_behind_, layer_front
+
+
+def _beyond_nearest(s: "_Samples", extent: np.ndarray, fovea_camera: CameraModel,
+                    left_pose: EyePose, right_pose: EyePose) -> np.ndarray | None:
+    """The samples beyond the nearest object's far bound where the ROI's samples above
+    the ground fall apart into two groups by disparity (Otsu's split): the nearer group
+    from its front (its NEAR_FRONT quantile), the farther one with at least
+    ``NEAR_SPLIT_SHARE`` of them and its FAR_QUANTILE beyond the near group's front plus a
+    whole object's depth (twice ``extent``) and ``MARGIN_PX``. None otherwise."""
+    pts = _sample_points(s, np.arange(s.d.size), fovea_camera, left_pose, right_pose)
+    up = np.nan_to_num(pts[:, 2], nan=-1.0) > MIN_HEIGHT_M
+    d = s.d[up]
+    if d.size < 2 * MIN_SAMPLES:
+        return None
+    t = _otsu(d)
+    if t is None:
+        return None
+    near, far = d[d <= t], d[d > t]
+    if min(near.size, far.size) < max(MIN_SAMPLES, NEAR_SPLIT_SHARE * d.size):
+        return None
+    front = float(np.quantile(near, NEAR_FRONT))
+    bound = front + 2.0 * float(np.median(extent)) + MARGIN_PX
+    if float(np.quantile(far, FAR_QUANTILE)) <= bound:
+        return None
+    return up & (s.d > bound)
+
+
+def _otsu(d: np.ndarray) -> float | None:
+    """The disparity that parts ``d`` (integers) into the two groups of least spread."""
+    values, counts = np.unique(d, return_counts=True)
+    if values.size < 2:
+        return None
+    w0 = np.cumsum(counts)[:-1].astype(float)
+    s0 = np.cumsum(counts * values)[:-1].astype(float)
+    n, total = float(counts.sum()), float((counts * values).sum())
+    w1 = n - w0
+    between = w0 * w1 * (s0 / w0 - (total - s0) / w1) ** 2
+    return float(values[int(np.argmax(between))])
 
 
 @dataclass(frozen=True)
