@@ -241,21 +241,31 @@ def test_where_the_top_meets_another_roi_only_a_round_outline_counts_else_the_bo
     assert read[False, "box"] is not None and read[False, "box"] > 2.0 * read[False, "cylinder"]
 
 
-def test_a_cylinder_cut_at_its_side_by_a_nearer_box_has_no_outline() -> None:
+def test_a_cylinder_cut_at_its_side_by_a_nearer_box_has_no_outline(monkeypatch) -> None:
     """A box 0.18 m nearer hides a cylinder's side (a random world's pair, 10132): the
     cylinder's silhouette is not as wide as the cylinder, so its D is unknown, and the
     ellipse O compares its outline with would be placed by that cut width (it read 0.17,
-    a box's value, and the cylinder was vetoed as its own category and stored again). O
-    is unknown with D; the box beside keeps its D."""
+    a box's value, and the cylinder was vetoed as its own category and stored again). A
+    cut outline counts only where it reads round, and this one does not: O is unknown
+    with D; the box beside keeps its D."""
     cyl_at = (0.574, -0.891)
     cylinder = ObjectSpec("c", "cylinder", cyl_at, 0.10, 123.0, 1.1, yaw=1.16)
     box = ObjectSpec("b", "box", (0.563, -0.708), 0.11, 62.0, 1.6, yaw=2.71)
+    asked: list[tuple[bool, bool]] = []
+    measure = perception_module.outline_feature
+
+    def spy(*args, **kwargs):
+        asked.append((kwargs["round_only"], kwargs["bottom_free"]))
+        return measure(*args, **kwargs)
+
+    monkeypatch.setattr(perception_module, "outline_feature", spy)
     rois = _look_at((cylinder, box), cyl_at)
     d_index = feature_names(FeatureMode.EXTENDED).index("D")
     near = min(rois, key=lambda r: math.dist(r.position[:2], cyl_at))
     assert math.dist(near.position[:2], cyl_at) < 0.05
     assert not near.known[d_index] and not near.known[O_INDEX]
     assert any(r.known[d_index] for r in rois if r is not near)
+    assert asked == [(True, False)]      # the fixated, cut silhouette: round only, no bottom
 
 
 def test_o_parts_a_box_from_a_cylinder_of_one_size_and_grey_at_any_yaw_and_place():

@@ -412,11 +412,11 @@ class Perception:
         H, A and AS are unknown where I is (too little of the outline is the object's own edge, or
         the retina's edge cuts it: its top may be another object's). O is measured, under
         the same condition, on the fovea of a visual improvement, for the ROI the eye
-        fixates (``fovea.fixated``), unless a nearer object cuts its silhouette (D unknown:
-        the ellipse would be placed by the cut width); where more than 1 - ``fovea.WHOLE``
-        of its top's columns meet another ROI (``fovea.top_against_other``) only a round
-        outline counts (a step between two objects adds departure); where the top's outline
-        does not count,
+        fixates (``fovea.fixated``); where a nearer object cuts its silhouette (D unknown:
+        the ellipse is placed by the cut width) or more than 1 - ``fovea.WHOLE`` of its
+        top's columns meet another ROI (``fovea.top_against_other``) only a round outline
+        counts (a cut or a step between two objects adds departure); where the top's
+        outline does not count and the silhouette is not cut,
         the bottom's does, unless more than 1 - ``fovea.WHOLE`` of its columns meet another
         ROI below (an object in front); and kept at the object's position
         (``fovea.FoveaLooks``: the median of its last looks), like the weight. The touch ones are
@@ -442,15 +442,20 @@ class Perception:
                                 self._ground[1])
             if math.isfinite(a_s):
                 extra[_AS], extra_known[_AS] = a_s, True
-            # O compares the outline with an ellipse as wide as the silhouette: where a
-            # nearer object cuts the silhouette (D unknown), that width is not the object's.
             if frame.fovea is not None and frame.fovea_camera is not None \
-                    and known[SIZE_INDEX] and fixated(blob.mask, blob.bbox, frame.camera):
+                    and fixated(blob.mask, blob.bbox, frame.camera):
                 if self._fovea_steps is None or self._fovea_steps[0] is not frame.fovea:
                     self._fovea_steps = (frame.fovea, fovea_steps(frame.fovea))
-                against = top_against_other(blob.mask, blob.bbox, labels, own) > 1.0 - WHOLE
-                free_below = top_against_other(blob.mask, blob.bbox, labels, own,
-                                               below=True) <= 1.0 - WHOLE
+                # O compares the outline with an ellipse as wide as the silhouette: where a
+                # nearer object cuts the silhouette (D unknown), that width is not the
+                # object's. A cut adds departure (a hidden cylinder's outline reads
+                # straight-edged), it never takes a box's away: only a round outline counts,
+                # and never the bottom's (cut as well).
+                cut = not known[SIZE_INDEX]
+                against = cut or top_against_other(blob.mask, blob.bbox, labels,
+                                                   own) > 1.0 - WHOLE
+                free_below = not cut and top_against_other(blob.mask, blob.bbox, labels, own,
+                                                           below=True) <= 1.0 - WHOLE
                 o = outline_feature(frame.fovea, frame.fovea_camera, frame.camera,
                                     frame.left_pose, blob.mask, blob.bbox, position,
                                     self._fovea_steps[1], round_only=against,
