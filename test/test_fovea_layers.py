@@ -82,6 +82,16 @@ def _names(frame, obj, mask) -> dict[str, int]:
             if i >= 0}
 
 
+def _windows_by_mode(frame) -> dict[str, list[str | None]]:
+    """The object under each attention window perception gives ``frame``, per mode."""
+    shown = {}
+    for mode in ("extended", "paper"):
+        rois = Perception(PerceptionConfig(features=mode)).process(frame)
+        shown[mode] = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
+                       for r in rois]
+    return shown
+
+
 def test_the_simulator_renders_the_right_fovea_with_its_own_noise() -> None:
     on = _look(PAIR, NEAR.position)
     off = _look(PAIR, NEAR.position, config=SimConfig(fovea_stereo=False))
@@ -191,11 +201,7 @@ def test_the_top_of_a_box_whose_front_face_has_the_far_objects_grey_leaves_its_r
     the prism's: the prism gets a window of its own in the extended mode; in the paper mode
     no window shows it."""
     frame = _look(WorldSpec((DARK_BOX, DARK_PRISM)), DARK_BOX.position, seed=seed)
-    shown = {}
-    for mode in ("extended", "paper"):
-        rois = Perception(PerceptionConfig(features=mode)).process(frame)
-        shown[mode] = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
-                       for r in rois]
+    shown = _windows_by_mode(frame)
     assert "far" in shown["extended"] and "far" not in shown["paper"], shown
 
 
@@ -218,11 +224,7 @@ def test_a_far_object_holding_most_of_the_samples_is_still_the_layer_behind(
     centre = np.median(layer.points, axis=0)
     assert np.hypot(centre[0] - SAME_GREY_CYLINDER.position[0],
                     centre[1] - SAME_GREY_CYLINDER.position[1]) < 0.08
-    shown = {}
-    for mode in ("extended", "paper"):
-        rois = Perception(PerceptionConfig(features=mode)).process(frame)
-        shown[mode] = [object_under_window(frame.left_labels, frame.label_names, r.bbox)
-                       for r in rois]
+    shown = _windows_by_mode(frame)
     assert "far" in shown["extended"] and "far" not in shown["paper"], shown
 
 
