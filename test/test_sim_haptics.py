@@ -311,6 +311,25 @@ def test_a_probe_held_up_by_another_link_is_given_up_and_the_object_still_weighe
     assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
 
 
+def test_a_probe_move_held_against_a_prism_ridge_is_given_up_and_the_prism_still_weighed(
+        ) -> None:
+    # Yaw 10139's prism c00_2, touched first on its slope: gliding across just above that
+    # touch, the hand ran into the ridge and waited there for the goal's timeout; the arm
+    # was reported FAILED, the weight lost, and the memory, deciding on sight alone, took
+    # the prism for another category (the wrong identification of that run).
+    world = parse_world({"name": "ridge", "objects": [
+        {"name": "prism", "shape": "prism", "position": [0.916, 0.385], "size": 0.10,
+         "intensity": 64, "weight": 1.4, "yaw": 1.57}]}, "test")
+    cfg = SimConfig(weight_noise_kg=0.0)
+    with Simulator(world, cfg, seed=0) as sim:
+        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, (0.8856, 0.3772, 0.0504)))
+        reading = sim.last_haptic
+    assert report.states["left_arm"] == ControllerState.CONVERGED
+    assert reading is not None and reading.contact
+    assert reading.weight == pytest.approx(1.4, abs=0.05)
+    assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
+
+
 @pytest.mark.parametrize("slack", [0.0, 0.03])
 def test_a_target_just_beyond_reach_is_touched_from_the_edge_of_reach(slack: float) -> None:
     # Twins 10080's prism c00_1 stood 4 mm inside the reach; the eyes put it 1.2 cm beyond

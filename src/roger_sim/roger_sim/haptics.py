@@ -171,6 +171,10 @@ class HapticRoutine:
         self._probe_planar: tuple[float, float] = (0.0, 0.0)
         # The lift height and step count when the probe's descent last made progress.
         self._descent = (math.inf, 0)
+        # The largest joint error and step count when the move across last made progress,
+        # and whether this move was raised to the probe height after a stall.
+        self._across = (math.inf, 0)
+        self._raised = False
         self._step_count = 0
         # Lift height of the highest touch so far (the first touch's, on a convex top).
         self._top = 0.0
@@ -300,9 +304,11 @@ class HapticRoutine:
             if ik is not None and self.servo.reachable(np.array([self._probe_height, *ik])):
                 self._probe, self._probe_planar = (dx, dy), ik
                 self.phase = "probe_move"
+                self._raised = False
                 self._go(self._glide_height, planar=ik)
                 return
         self.phase = "return"
+        self._raised = False
         self._go(self._glide_height)
 
     def _stalled(self, lift: float) -> bool:
@@ -313,6 +319,29 @@ class HapticRoutine:
             self._descent = (lift, self._step_count)
             return False
         return self._step_count - since >= math.ceil(PROBE_STALL_S / self.config.time_step)
+
+    def _blocked(self, q_arm: np.ndarray) -> bool:
+        """True when a move across (to a probe, or back over the first touch) has not come
+        ``PROBE_STALL_M`` nearer its reference (largest joint error) for ``PROBE_STALL_S``:
+        the hand is held against something, a prism's ridge above a touch on its slope."""
+        ref = self.servo.reference
+        if ref is None:
+            return False
+        error = float(np.max(np.abs(q_arm - ref)))
+        best, since = self._across
+        if error < best - PROBE_STALL_M:
+            self._across = (error, self._step_count)
+            return False
+        return self._step_count - since >= math.ceil(PROBE_STALL_S / self.config.time_step)
+
+    def _across_again(self, planar: tuple[float, float]) -> bool:
+        """After a stalled move across: the first time, the same move at the probe height
+        (True); the second time, nothing (False: the caller gives the move up)."""
+        if self._raised:
+            return False
+        self._raised = True
+        self._go(self._probe_height, planar=planar)
+        return True
 
     def _passed(self, q_arm: np.ndarray) -> bool:
         """Every arm joint within tolerance of the reference, moving or not.
@@ -335,6 +364,7 @@ class HapticRoutine:
     def _go(self, lift: float, planar: tuple[float, float] | None = None,
             tolerance: float | None = None) -> None:
         planar = self._planar if planar is None else planar
+        self._across = (math.inf, self._step_count)
         self.servo.set_reference(np.array([lift, *planar]),
                                  tolerance=tolerance or self.config.arm_tolerance)
 
@@ -444,6 +474,11 @@ class HapticRoutine:
         elif self.phase == "probe_move" and (converged or self._passed(q_arm)):
             self.phase = "probe_down"
             self._descent = (float(q_arm[0]), self._step_count)
+        elif self.phase == "probe_move" and self._blocked(q_arm):
+            # Held against the object on the way across (gliding just above a first touch
+            # on a prism's slope, into its ridge): once more higher, then on to the next.
+            if not self._across_again(self._probe_planar):
+                self._next_probe_or_return()
         elif self.phase == "probe_down":
             bottom = max(self._floor, self._contact_z - self.config.probe_depth_m)
             if self._lower(bottom, self._probe_planar) and converged:
@@ -456,6 +491,9 @@ class HapticRoutine:
                 self._go(self._probe_height, planar=self._probe_planar)
         elif self.phase == "return" and (converged or self._passed(q_arm)):
             self.phase = "retouch"
+        elif self.phase == "return" and self._blocked(q_arm) and not self._across_again(
+                self._planar):
+            self.phase = "retouch"  # down towards the first touch from where the hand is
         elif self.phase == "lift" and converged:
             self.phase = "weigh"
         elif self.phase == "weigh":
