@@ -431,6 +431,37 @@ def test_the_rims_curvature_vetoes_only_between_flat_tops() -> None:
     assert memory.decide(q, known, final_trial=True).vetoed is False
 
 
+def _touched_decision(stored: list[tuple[float, bool]], query_tc: float,
+                      config: MemoryConfig | None = None, rim: bool = False,
+                      stored_rim: bool = False) -> bool:
+    """Whether a final look is vetoed by an address stored from looks whose TC is each
+    (crease, measured) of ``stored`` (the other features alike, TK 0), the query's TC
+    ``query_tc``; ``rim``/``stored_rim``: the query's/the stored looks' pad lay flat over
+    a top's rim (TR known)."""
+    cfg = config or MemoryConfig.for_mode("extended")
+    names = feature_names("extended")
+    tc, tk, tr = names.index("TC"), names.index("TK"), names.index("TR")
+    known = np.ones(len(names), bool)
+    known[tr] = False  # a prism's top never lies flat under the pad
+    x = np.full(len(names), 0.4)
+    x[tk] = 0.0
+    memory = AssociativeMemory(cfg, seed=3)
+    looks = []
+    for crease, measured in stored:
+        look, k = x.copy(), known.copy()
+        look[tc], k[tc], k[tr] = crease, measured, stored_rim
+        looks.append((look, k))
+    # The earlier looks of one focus, then its store: the address holds them all.
+    for look, k in looks[:-1]:
+        memory.decide(look, k, focus_id=1)
+    address = memory.store(*looks[-1], focus_id=1)
+    assert len(memory.exemplars(address)) == len(looks)
+    q, k = x.copy(), known.copy()
+    q[tc] = query_tc
+    k[tr] = rim
+    return memory.decide(q, k, final_trial=True).vetoed
+
+
 def test_a_crease_found_is_not_an_address_that_never_found_one() -> None:
     """One-sided (``crease_found_veto``): a query whose touches found a crease (a prism's
     ridge) is turned down by an address none of whose looks found one, wherever the other
@@ -439,32 +470,7 @@ def test_a_crease_found_is_not_an_address_that_never_found_one() -> None:
     looks found a crease or whose looks never measured one, nor a query whose pad lay flat
     over a top's rim (TR known: a flat top's rim is a crease too)."""
     cfg = MemoryConfig.for_mode("extended")
-    names = feature_names("extended")
-    tc, tk, tr = names.index("TC"), names.index("TK"), names.index("TR")
-    known = np.ones(len(names), bool)
-    known[tr] = False  # a prism's top never lies flat under the pad
-    x = np.full(len(names), 0.4)
-    x[tk] = 0.0
-
-    def decide(stored: list[tuple[float, bool]], query_tc: float,
-               config: MemoryConfig = cfg, rim: bool = False) -> bool:
-        memory = AssociativeMemory(config, seed=3)
-        looks = []
-        for crease, measured in stored:
-            look, k = x.copy(), known.copy()
-            look[tc], k[tc] = crease, measured
-            looks.append((look, k))
-        # The earlier looks of one focus, then its store: the address holds them all.
-        for look, k in looks[:-1]:
-            memory.decide(look, k, focus_id=1)
-        address = memory.store(*looks[-1], focus_id=1)
-        assert len(memory.exemplars(address)) == len(looks)
-        q, k = x.copy(), known.copy()
-        q[tc] = query_tc
-        if rim:
-            k[tr] = True
-        return memory.decide(q, k, final_trial=True).vetoed
-
+    decide = _touched_decision
     assert decide([(0.1, True)], 1.0) is True
     assert decide([(0.1, True)], 1.0,
                   dataclasses.replace(cfg, crease_found_veto=False)) is False
@@ -475,6 +481,26 @@ def test_a_crease_found_is_not_an_address_that_never_found_one() -> None:
     assert decide([(0.1, True)], 1.0, rim=True) is False
     # The paper mode has no TC: the rule has nothing to read there.
     assert "TC" not in feature_names("paper")
+
+
+def test_a_flat_rim_felt_is_not_an_address_that_only_found_creases() -> None:
+    """The mirror (``rim_found_veto``): random 10141's 0.08 m cylinders, whose pads lay
+    flat over the top's rim (TR known) and found no crease, were taken for the prism stored
+    first (TC 1.0, no rim), close in size, grey and weight. Turned down now; not by an
+    address one of whose looks found no crease, or felt a rim, or never measured TC, and
+    never a query that felt no rim (none found is no evidence of none) or found a
+    crease."""
+    cfg = MemoryConfig.for_mode("extended")
+    decide = _touched_decision
+    assert decide([(1.0, True)], 0.1, rim=True) is True
+    assert decide([(1.0, True), (0.9, True)], 0.1, rim=True) is True
+    assert decide([(1.0, True)], 0.1, dataclasses.replace(cfg, rim_found_veto=False),
+                  rim=True) is False
+    assert decide([(1.0, True)], 0.1) is False
+    assert decide([(1.0, True)], 1.0, rim=True) is False
+    assert decide([(1.0, True), (0.1, True)], 0.1, rim=True) is False
+    assert decide([(1.0, False)], 0.1, rim=True) is False
+    assert decide([(1.0, True)], 0.1, rim=True, stored_rim=True) is False
 
 
 def _stored_then_asked(cfg: MemoryConfig, x: np.ndarray, q: np.ndarray, known: np.ndarray,

@@ -33,7 +33,8 @@ LIVE = {
     "roger_perception": set(),
     "roger_memory": {"identify_share", "veto", "flat_veto", "flat_crease", "flat_curvature",
                      "straight_outline", "straight_veto", "curved_veto",
-                     "veto_any_look", "veto_rerun", "crease_found_veto"},
+                     "veto_any_look", "veto_rerun", "crease_found_veto",
+                     "rim_found_veto"},
     "roger_attention": {"qlearning.epsilon", "spatial_map.interest_rate", "max_cycles",
                         "stop_when_complete", "wait_for_observers", "retry_after_s"},
 }

@@ -283,6 +283,11 @@ class MemoryConfig:
             flank), so a query that found no crease is never vetoed by it. And a flat top's
             rim is a crease too (a cylinder touched at the edge of reach, its probes over
             the rim): a query whose pad lay flat over a rim (TR known) is not either.
+        rim_found_veto: Its mirror (extended mode): a query whose pad lay flat over a
+            top's rim (TR known) and whose touches found no crease (TC < ``flat_crease``)
+            is not an address every one of whose looks that measured TC found a crease
+            and felt no rim (a prism: its top never lies flat under the pad). A rim felt
+            is evidence of a flat top, as a crease found is of an edge.
         veto_rerun: After a veto, inhibit the vetoed winner and let the winner-take-all run
             again, once, over the units left; the next address wins if the veto lets it
             pass, with its share renormalised over the units left. False: a veto makes the
@@ -358,6 +363,10 @@ class MemoryConfig:
     crease_found_veto: bool = field(default=True, metadata={
         "doc": "A look that found a crease and no flat top is not an address none of whose "
                "looks found one",
+        "live": True})
+    rim_found_veto: bool = field(default=True, metadata={
+        "doc": "A look that felt a flat top's rim and no crease is not an address all of "
+               "whose touched looks found a crease and no rim",
         "live": True})
     veto_rerun: bool = field(default=True, metadata={
         "doc": "After a veto, inhibit the vetoed winner and let the WTA run again, once",

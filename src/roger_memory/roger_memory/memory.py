@@ -191,6 +191,10 @@ class AssociativeMemory:
         # A crease found is not an address that never found one (crease_found_veto).
         self._crease_found = ((names.index("TC"), names.index("TR")) if "TR" in names
                               and config.crease_found_veto else None)
+        # A flat top's rim felt is not an address that only ever found a crease
+        # (rim_found_veto).
+        self._rim_found = ((names.index("TC"), names.index("TR")) if "TR" in names
+                           and config.rim_found_veto else None)
 
     def veto_between(self, features: np.ndarray, known: np.ndarray,
                      other: np.ndarray, other_known: np.ndarray) -> np.ndarray:
@@ -374,7 +378,9 @@ class AssociativeMemory:
         the address compares with the query is within the veto in every common feature; else
         its nearest look decides. With ``crease_found_veto`` a query that found a crease
         and felt no flat top's rim (TR unknown) is turned down by an address none of
-        whose looks that measured TC found one."""
+        whose looks that measured TC found one; with ``rim_found_veto`` a query that felt
+        a flat top's rim (TR known) and found no crease is turned down by an address
+        every one of whose looks that measured TC found a crease and felt no rim."""
         mine = np.flatnonzero(self._addresses == address)
         nearest = mine[np.argmin(d2[mine])]
         if self._crease_found is not None:
@@ -383,6 +389,14 @@ class AssociativeMemory:
             # A flat top's rim is a crease too: only a query that felt no flat top.
             if (k[tc] and x[tc] >= full and not k[tr] and len(felt)
                     and np.all(self._exemplars[felt, tc] < full)):
+                return True, float(np.sqrt(d2[nearest]))
+        if self._rim_found is not None:
+            (tc, tr), full = self._rim_found, self._config.flat_crease
+            felt = mine[self._known[mine, tc]]
+            # The mirror: a pad that lay flat over a rim, no crease, is no prism's top.
+            if (k[tr] and k[tc] and x[tc] < full and len(felt)
+                    and np.all(self._exemplars[felt, tc] >= full)
+                    and not np.any(self._known[felt, tr])):
                 return True, float(np.sqrt(d2[nearest]))
         looks = [nearest]
         if self._config.veto_any_look:
