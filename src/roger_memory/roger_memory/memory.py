@@ -27,7 +27,9 @@ UNDETERMINED (not sure yet: improve the features). The BP network decides
   straight-edged (``straight_veto``: a box's top) A vetoes closer; elsewhere they vary
   with the view and do not. A query whose touches found a crease, and no flat top's rim,
   is turned down by an address none of whose looks found one (``crease_found_veto``;
-  one-sided: none found is no evidence of none).
+  one-sided: none found is no evidence of none); its mirror, a query whose pad lay flat
+  over a top's rim and found no crease, by an address all of whose touched looks found a
+  crease and no rim (``rim_found_veto``).
 
 Each address holds several looks: the looks of the focus that stored it (the requests
 carry the focus id) and, later, looks of foci identified as it, added only when one of
