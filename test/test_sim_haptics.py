@@ -290,25 +290,34 @@ def test_no_probes_is_the_routine_before_them() -> None:
         assert math.dist(reading.contacts[0].point, position) < 5 * cfg.tactile_noise_m
 
 
+def _weighed_before_the_timeout(cfg: SimConfig, objects: list[dict],
+                                target: tuple[float, float, float], seed: int
+                                ) -> HapticReading:
+    """One haptic improvement by the left arm on ``objects`` at ``target``: it converges
+    before the goal's timeout and weighs the first object (noise-free ``cfg``)."""
+    world = parse_world({"name": "touch", "objects": objects}, "test")
+    with Simulator(world, cfg, seed=seed) as sim:
+        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, target))
+        reading = sim.last_haptic
+    assert report.states["left_arm"] == ControllerState.CONVERGED
+    assert reading is not None and reading.contact
+    assert reading.weight == pytest.approx(objects[0]["weight"], abs=0.05)
+    assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
+    return reading
+
+
 def test_a_probe_held_up_by_another_link_is_given_up_and_the_object_still_weighed() -> None:
     # Random 8x3 / yaw 10021's layout: the left arm probing a prism 0.95 m out rests its
     # upper link on a box beside the shoulder during one probe's descent; the hand touches
     # nothing and the descent waited for the goal's timeout, losing the weight with it.
-    world = parse_world({"name": "held_up", "objects": [
+    cfg = SimConfig(weight_noise_kg=0.0)
+    reading = _weighed_before_the_timeout(cfg, [
         {"name": "prism", "shape": "prism", "position": [0.946, 0.071], "size": 0.10,
          "intensity": 52, "weight": 0.2, "yaw": 1.57},
         {"name": "box", "shape": "box", "position": [0.325, 0.315], "size": 0.13,
-         "intensity": 54, "weight": 0.8}]}, "test")
-    cfg = SimConfig(weight_noise_kg=0.0)
-    with Simulator(world, cfg, seed=1) as sim:
-        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, (0.925, 0.074, 0.038)))
-        reading = sim.last_haptic
-    assert report.states["left_arm"] == ControllerState.CONVERGED
-    assert reading is not None and reading.contact
-    assert reading.weight == pytest.approx(0.2, abs=0.05)
+         "intensity": 54, "weight": 0.8}], (0.925, 0.074, 0.038), seed=1)
     # The first touch and the probes that touched: one was given up.
     assert 2 <= len(reading.contacts) <= cfg.probe_directions
-    assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
 
 
 def test_a_probe_move_held_against_a_prism_ridge_is_given_up_and_the_prism_still_weighed(
@@ -317,17 +326,9 @@ def test_a_probe_move_held_against_a_prism_ridge_is_given_up_and_the_prism_still
     # touch, the hand ran into the ridge and waited there for the goal's timeout; the arm
     # was reported FAILED, the weight lost, and the memory, deciding on sight alone, took
     # the prism for another category (the wrong identification of that run).
-    world = parse_world({"name": "ridge", "objects": [
+    _weighed_before_the_timeout(SimConfig(weight_noise_kg=0.0), [
         {"name": "prism", "shape": "prism", "position": [0.916, 0.385], "size": 0.10,
-         "intensity": 64, "weight": 1.4, "yaw": 1.57}]}, "test")
-    cfg = SimConfig(weight_noise_kg=0.0)
-    with Simulator(world, cfg, seed=0) as sim:
-        report = sim.execute(Goal(1, Action.HAPTIC_IMPROVEMENT, (0.8856, 0.3772, 0.0504)))
-        reading = sim.last_haptic
-    assert report.states["left_arm"] == ControllerState.CONVERGED
-    assert reading is not None and reading.contact
-    assert reading.weight == pytest.approx(1.4, abs=0.05)
-    assert report.physics_steps * cfg.time_step < cfg.goal_timeout_s
+         "intensity": 64, "weight": 1.4, "yaw": 1.57}], (0.8856, 0.3772, 0.0504), seed=0)
 
 
 @pytest.mark.parametrize("slack", [0.0, 0.03])
