@@ -17,7 +17,10 @@ of reach, crowded) to OUT/worlds, runs
 prints, per run, the figures the project is judged by (computed as
 shared/tools/run_figures.py computes them): identification and novelty precision (1.0
 when there was none), new objects against the categories the window showed, objects
-visited, empty attention shifts, and whether the run meets issue 16's three targets
+visited, empty attention shifts, failed touches (haptic improvements whose target lay
+within reach, ``roger_sim.world.in_reach``, and whose arm did not converge: a weight lost,
+the look then decided on sight; docs/memory.md, "Fresh seeds 10138-10147"), and whether
+the run meets issue 16's three targets
 (identification >= 0.95, novelty >= 0.9, new objects within one of the categories) and
 issue 38's (the same, new objects at most one more than the categories). ``replay``
 replays recorded query sets through fresh memories
@@ -47,7 +50,7 @@ from roger_experiments.core_loop import run_core
 from roger_experiments.record_queries import read_csv, replay
 from roger_memory.config import MemoryConfig
 from roger_memory.memory import AssociativeMemory, MemoryStats
-from roger_sim.world import TEXTURES, load_world, world_to_dict
+from roger_sim.world import TEXTURES, in_reach, load_world, world_to_dict
 from roger_sim.worldgen import random_world
 
 #: Recipes of random worlds (keyword arguments of ``random_world``); ``inspection`` is the
@@ -90,12 +93,16 @@ def figures(run: Path, world: Path) -> dict[str, Any]:
     visited = {r["true_object"] for r in rows if r["true_object"] in cat}
     shifts = [r for r in rows if r["action"] == "attention_shift"]
     empty = sum(1 for r in shifts if r.get("outcome") == "lost" or not r["true_object"])
+    touches = [r for r in rows if r["action"] == "haptic_improvement"
+               and in_reach(float(r["x"]), float(r["y"]))]
+    failed = sum(1 for r in touches if r.get("converged") in ("0", "False"))
     return {
         "id": m["identification_precision"] if m["positive_identifications"] else 1.0,
         "nov": m["novelty_precision"] if m["new_objects"] else 1.0,
         "new": m["new_objects"], "categories_visited": len({cat[n] for n in visited}),
         "visited": f"{len(visited)}/{len(cat)}", "empty": f"{empty}/{len(shifts)}",
         "identifications": m["positive_identifications"],
+        "failed_touches": f"{failed}/{len(touches)}",
     }
 
 
@@ -132,6 +139,7 @@ def closed_loop(args: argparse.Namespace) -> None:
             line = (f"{name:18} {run.name:24} id={f['id']:.2f} nov={f['nov']:.2f} "
                     f"new={f['new']} categories_visited={f['categories_visited']} "
                     f"visited={f['visited']} empty={f['empty']} "
+                    f"failed_touches={f['failed_touches']} "
                     f"{'meets' if ok else 'misses'} "
                     f"issue38={'meets' if ok38 else 'misses'}")
             print(line, flush=True)
