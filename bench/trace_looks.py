@@ -34,7 +34,7 @@ from roger_sim.world import load_world
 
 #: Features printed unless ``--show`` names others (those of the extended mode that
 #: the paper mode lacks are skipped there).
-SHOWN = ("I1", "T2", "D", "W", "H", "O", "A", "AS", "TH", "TC", "TR")
+SHOWN = ("I1", "T2", "D", "W", "H", "O", "A", "AS", "TH", "TC", "TR", "AP")
 
 
 def composition(labels: np.ndarray, names: list[str], mask: np.ndarray) -> str:

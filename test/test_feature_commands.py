@@ -142,7 +142,7 @@ def _extended_look(obj: str, i1: float, touched: bool) -> feature_report.Look:
     n = len(feature_names(FeatureMode.EXTENDED))
     features, known = np.full(n, 0.5), np.ones(n, bool)
     features[0] = i1
-    for name in ("TH", "TK", "TC", "TR"):  # weighed without a tactile contact: unknown, 0
+    for name in ("TH", "TK", "TC", "TR", "AP"):  # weighed without a tactile contact: unknown, 0
         k = feature_names(FeatureMode.EXTENDED).index(name)
         known[k], features[k] = touched, features[k] if touched else 0.0
     roi = Roi(0, (0, 0, 4, 4), (0.5, 0.0, 0.05), features, known)
@@ -164,18 +164,18 @@ def test_a_feature_no_look_measured_is_reported_unknown_not_as_nan_or_zero_sprea
     names = list(feature_names(FeatureMode.EXTENDED))
     s = result["focus_looks"]
     assert s["features"] == names and result["feature_mode"] == "extended"
-    for f in ("TH", "TK", "TC", "TR"):  # NaN, not a within spread of 0 (ratio inf)
+    for f in ("TH", "TK", "TC", "TR", "AP"):  # NaN, not a within spread of 0 (ratio inf)
         k = names.index(f)
         assert math.isnan(s["within"][k]) and math.isnan(s["ratio"][k]), f
     # The measured features keep their spreads: I1's looks +-0.01 around 0.3 and 0.7.
     assert s["ratio"][0] == pytest.approx(np.std([0.3, 0.7], ddof=1)
                                           / np.sqrt(4 * 0.01 ** 2 / 2))
     text = (tmp_path / "features.md").read_text()
-    for f in ("TH", "TK", "TC", "TR"):
+    for f in ("TH", "TK", "TC", "TR", "AP"):
         assert f"| {f} | unknown | - | - | - | - |" in text, f
     assert "| W | unknown" not in text and "| H | 0.0000 |" in text
     line = next(t for t in text.splitlines() if t.startswith("**Extended features**"))
-    assert "unknown (never measured): TH, TK, TC, TR" in line and "nan" not in line
+    assert "unknown (never measured): TH, TK, TC, TR, AP" in line and "nan" not in line
     assert result["memory_separability"]["objects"] == 2  # W known: the memory's looks
     with (tmp_path / "looks.csv").open() as f:
         rows = list(csv.DictReader(f))

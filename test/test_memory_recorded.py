@@ -109,7 +109,7 @@ def test_the_shipped_extended_calibration_is_what_the_recorded_extended_looks_gi
     defaults = MemoryConfig.for_mode("extended")
     ext = CALIBRATED[FeatureMode.EXTENDED]
     ext_unused = defaults.creased_unused
-    assert ext_unused == ("O", "A")
+    assert ext_unused == ("O", "A", "I1", "I2", "I3", "T1", "T2", "T3")
     flat = flat_looks(x, known, names.index("TC"), names.index("TK"), defaults.flat_crease,
                       defaults.flat_curvature)
     o = names.index("O")

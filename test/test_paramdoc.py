@@ -99,7 +99,7 @@ def test_params_file_sets_every_node(no_leaks, context, tmp_path):
                .replace("    scale: 2", "    scale: 3")
                .replace("    image_size: 128", "    image_size: 96")
                .replace("    samples_m: 32", "    samples_m: 16")
-               .replace('    maskable_features: ["W", "TH", "TK", "TC", "TR", "O"]',
+               .replace('    maskable_features: ["W", "TH", "TK", "TC", "TR", "AP", "O"]',
                         '    maskable_features: ["W", "D"]'))
     path = tmp_path / "params.yaml"
     path.write_text(changed)

@@ -45,10 +45,13 @@ SIZE_INDEX: int = FEATURE_NAMES.index("D")
 #: on a sphere), TC the crease between them that the curvature does not explain (a
 #: prism's ridge) and TR the curvature of a flat top's rim the tactile array felt under the
 #: pad (0 for a box's straight edge, 2 / size for a cylinder's; unknown where no touch
-#: reached over a rim).
-SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "AS", "TH", "TK", "TC", "TR")
-#: The features a haptic improvement measures (unknown before one): W and touch's shape.
-TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC", "TR")
+#: reached over a rim). From sight and touch together (unknown until a haptic improvement
+#: touched a sloped face and crossed a crease: a prism): AP the albedo the silhouette's
+#: shading gives under the known light for the faces the touched flanks' normals say.
+SHAPE_FEATURE_NAMES: tuple[str, ...] = ("H", "O", "A", "AS", "TH", "TK", "TC", "TR", "AP")
+#: The features a haptic improvement measures (unknown before one): W, touch's shape and
+#: the albedo of the faces it touched.
+TOUCH_FEATURE_NAMES: tuple[str, ...] = ("W", "TH", "TK", "TC", "TR", "AP")
 #: The features only a visual improvement's foveal look measures (unknown before one).
 FOVEA_FEATURE_NAMES: tuple[str, ...] = ("O",)
 

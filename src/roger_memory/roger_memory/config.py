@@ -46,16 +46,16 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02678, 0.03961, 0.04799, 0.00524, 0.00585, 0.00549,
-    0.02985, 0.02601, 0.02483, 0.00463, 0.01064, 0.02797,
-    0.01759, 0.01382, 0.01977, 0.00125, 0.00542, 0.02555,
-    0.01951)
+    0.02630, 0.03939, 0.04737, 0.00527, 0.00590, 0.00554,
+    0.02970, 0.02559, 0.02447, 0.00461, 0.01060, 0.02826,
+    0.01599, 0.01371, 0.01954, 0.00128, 0.00520, 0.02544,
+    0.01966, 0.00457)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.519, 1.160, 0.983, 0.530, 0.433, 0.459,
-    0.386, 0.297, 0.050, 1.687, 3.032, 0.515,
-    1.287, 1.567, 1.412, 0.777, 0.097, 0.387,
-    2.422)
-EXTENDED_IDENTIFY_DISTANCE: float = 2.52
+    1.517, 1.149, 0.977, 0.504, 0.418, 0.456,
+    0.404, 0.326, 0.048, 1.669, 2.964, 0.502,
+    1.379, 1.551, 1.406, 0.778, 0.171, 0.388,
+    2.391, 1.000)
+EXTENDED_IDENTIFY_DISTANCE: float = 2.30
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
 #: reads 0.18-0.56 over yaws). A fixed robot sees each object from one place, so two
@@ -66,7 +66,10 @@ EXTENDED_IDENTIFY_DISTANCE: float = 2.52
 #: A (the brightest surface's grey) is view dependent for a sphere and a prism (their
 #: brightest visible surface turns with bearing and yaw), not for a flat top. AS (the
 #: albedo a sphere's normals give the shading) is view dependent for every other shape;
-#: between two looks the hand found curved it vetoes (CURVED_VETO_FEATURES).
+#: between two looks the hand found curved it vetoes (CURVED_VETO_FEATURES). AP (the albedo
+#: the touched flanks' normals give the shading) is known only where the touches crossed
+#: a crease on a sloped face (a prism's), and reads alike at every yaw and place there: it
+#: vetoes (docs/perception.md, "A prism's albedo (AP)").
 VIEW_DEPENDENT_FEATURES: tuple[str, ...] = ("I1", "I2", "I3", "T1", "T2", "T3",
                                             "S1", "S2", "S3", "O", "A", "AS")
 #: Touch features whose reading can miss what it measures: a haptic reading whose probes
@@ -96,10 +99,10 @@ NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATU
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0385, 0.0495, 0.2255,
-    1.0, 1.0, 1.0, 0.0246, 0.2813, 1.0,
-    1.0)
-EXTENDED_NOISE_DOF: float = 3.76
+    1.0, 1.0, 1.0, 0.0406, 0.0493, 0.2310,
+    1.0, 1.0, 1.0, 0.0252, 0.3615, 1.0,
+    1.0, 0.0349)
+EXTENDED_NOISE_DOF: float = 4.41
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same
 #: from every place (a cylinder's rim is the ellipse the outline is measured against, a
@@ -118,8 +121,8 @@ FLAT_VETO_FEATURES: tuple[str, ...] = ("O", "A") + FLAT_ONLY_FEATURES
 EXTENDED_FLAT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    0.0968, 0.1018, 1.0, 1.0, 1.0, 1.0,
-    0.1641)
+    0.0706, 0.0754, 1.0, 1.0, 1.0, 1.0,
+    0.1236, 1.0)
 #: The features that veto between two flat looks whose outlines are both straight-edged
 #: (``MemoryConfig.straight_veto``): A. A box's top is one grey under the one light
 #: wherever it stands (copies within 0.002-0.008 of each other), where a cylinder's
@@ -137,8 +140,8 @@ EXTENDED_STRAIGHT_OUTLINE: float = 0.1261
 EXTENDED_STRAIGHT_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 0.0266, 1.0, 1.0, 1.0, 1.0,
-    1.0)
+    1.0, 0.0196, 1.0, 1.0, 1.0, 1.0,
+    1.0, 1.0)
 #: The features that veto between two looks the hand found smooth and curved
 #: (``MemoryConfig.curved_veto``: TC < ``flat_crease``, TK >= ``flat_curvature``, a
 #: sphere): AS. A sphere's albedo under the known light reads alike from every place
@@ -153,8 +156,8 @@ CURVED_VETO_FEATURES: tuple[str, ...] = ("AS",)
 EXTENDED_CURVED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 0.0406, 1.0, 1.0, 1.0,
-    1.0)
+    1.0, 1.0, 0.0395, 1.0, 1.0, 1.0,
+    1.0, 1.0)
 #: The features left out of the distance between two looks whose touches crossed a
 #: crease (TC >= ``MemoryConfig.flat_crease``: a prism's ridge): the fovea's outline O,
 #: which for a creased object turns with its yaw (a prism's reads 0.2-0.85) and so says
@@ -166,13 +169,16 @@ EXTENDED_CURVED_VETO: tuple[float, ...] = (
 #: contrast I1-I3 turns too, but between two prisms it still parts categories: left out
 #: as well, 5 of 225 pairs of two categories' creased looks fell within the acceptance
 #: distance, none with A alone; docs/memory.md, "The brightest grey between two creased
-#: looks".)
-CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A")
-#: The extended mode caps each feature's |z| at 6 in every distance (MemoryConfig.z_cap),
+#: looks".) Since 2026-11-29 I1-I3 and T1-T3 are left out too: AP, the albedo of the faces
+#: the hand touched, carries a prism's grey at every yaw, where the rim contrast and the
+#: texture of its lit flank turn with it (17 of 23 copies on random 10142-10143 were
+#: prisms beyond tau by I and T; docs/memory.md, "A prism's albedo").
+CREASED_UNUSED_FEATURES: tuple[str, ...] = ("O", "A", "I1", "I2", "I3", "T1", "T2", "T3")
+#: The extended mode caps each feature's |z| at 4.5 in every distance (MemoryConfig.z_cap),
 #: the cap ``calibration.choose_z_cap`` picks from the same looks: of the caps 0-8, the
 #: one whose acceptance distance (95 % of the robot's own repeats) takes in the fewest
 #: looks of other map entries (docs/memory.md, "A robust distance").
-EXTENDED_Z_CAP: float = 6.0
+EXTENDED_Z_CAP: float = 4.5
 
 
 @dataclass(frozen=True)

@@ -469,7 +469,7 @@ def novel_offsets(rng: np.random.Generator, known: np.ndarray, config: MemoryCon
     With a cap on each feature's |z| (``z_cap``, the extended mode), an offset's distance
     stops growing once its features reach the cap, and never exceeds the cap itself. The
     radius is drawn as without a cap, and one the capped distance cannot reach is set to
-    the farthest it can (0.99 z_cap; 1.6 tau in the extended mode); each offset is then
+    the farthest it can (0.99 z_cap; 1.9 tau in the extended mode); each offset is then
     stretched (bisection) until its capped distance is that radius. So within reach the
     novel samples are as dense per unit of distance as the paper mode's, and the rest lie
     at the far end, where they teach "far is novel" and move no boundary near tau.

@@ -89,6 +89,12 @@ class HapticMemory:
         i = self._nearest(np.asarray(position, float))
         return None if i is None else self._shape[i]
 
+    def readings_near(self, position: Sequence[float]) -> list[tuple[TactileContact, ...]]:
+        """The touches of the last readings at the nearest position within the radius
+        (``shape.creased_albedo`` reads the touched faces' normals); [] without one."""
+        i = self._nearest(np.asarray(position, float))
+        return [] if i is None else list(self._touch[i])
+
     def clear(self) -> None:
         """Forget every reading."""
         self._positions.clear()

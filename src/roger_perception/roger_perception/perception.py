@@ -77,6 +77,8 @@ from roger_perception.log_filter import log_pyramid
 from roger_perception.roi_finder import SeenObject, find_objects, raster_index
 from roger_perception.segmentation import background_level, blob_of, ground_level, window_boxes
 from roger_perception.shape import (
+    AP_CREASE,
+    creased_albedo,
     smoothed_grey,
     sphere_albedo,
     top_brightness,
@@ -94,6 +96,10 @@ STAGES: tuple[str, ...] = ("log", "segment", "match", "features", "activation")
 #: Index of A (the brightest surface's grey) among the extended features.
 _A: int = SHAPE_FEATURE_NAMES.index("A")
 _AS: int = SHAPE_FEATURE_NAMES.index("AS")
+#: Indices of touch's shape (TH, TK, TC, TR: ``shape.touch_shape``) and of AP.
+_TOUCH: slice = slice(SHAPE_FEATURE_NAMES.index("TH"), SHAPE_FEATURE_NAMES.index("TR") + 1)
+_TC: int = SHAPE_FEATURE_NAMES.index("TC")
+_AP: int = SHAPE_FEATURE_NAMES.index("AP")
 
 
 class Perception:
@@ -467,11 +473,23 @@ class Perception:
             extra[1], extra_known[1] = o_near, True
         touch = self.haptic_memory.touch_near(position)
         if touch is not None:
-            # The touch features come last (TOUCH_FEATURE_NAMES less W); TR is unknown
-            # (NaN) until a touch reached over a flat top's rim.
+            # TR is unknown (NaN) until a touch reached over a flat top's rim.
             values = np.asarray(touch, float)
-            extra[-len(touch):] = np.nan_to_num(values)
-            extra_known[-len(touch):] = np.isfinite(values)
+            extra[_TOUCH] = np.nan_to_num(values)
+            extra_known[_TOUCH] = np.isfinite(values)
+            # AP where the touches crossed a crease and lay on a sloped face (a prism's
+            # flank), from the silhouette as AS is (unknown where I is).
+            if known[0] and extra_known[_TC] and extra[_TC] >= AP_CREASE:
+                cfg = self.config
+                if self._ground is None or self._ground[0] is not frame.left:
+                    self._ground = (frame.left, background_level(frame.left))
+                a_p = creased_albedo(frame.left, blob.mask, blob.bbox,
+                                     self.haptic_memory.readings_near(position),
+                                     frame.left_pose.position, position,
+                                     cfg.light_direction, cfg.light_ambient,
+                                     cfg.light_diffuse, self._ground[1])
+                if math.isfinite(a_p):
+                    extra[_AP], extra_known[_AP] = a_p, True
         return (np.concatenate([feats, extra]).astype(np.float32),
                 np.concatenate([known, extra_known]))
 

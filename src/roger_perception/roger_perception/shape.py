@@ -46,6 +46,20 @@ known eye pose, never the simulator's objects):
   yaw and bearing (sd 0.015-0.03): the memory compares it only between two looks the hand
   found smooth and curved (``MemoryConfig.curved_veto``), where it vetoes.
 
+* ``AP``: the albedo of a prism whose flanks the hand touched (``creased_albedo``; sight
+  and touch together, unknown until a haptic improvement crossed a crease, TC >=
+  ``AP_CREASE``, with a touch on a sloped face). A prism's brightest flank turns with its
+  yaw against the one light, so A and the paper's I and T do (its copies' A 6-25 greys
+  apart), and AS is no albedo of it (0.33-0.42 for grey 100). The touches on its flanks
+  report their normals (tilt 55-64 degrees, azimuth the flank's, within 3-4 degrees):
+  they give both flanks' and both ends' normals, and under the known light each face's
+  shading. Each silhouette pixel's grey over each face's shading is an albedo it may
+  say; the one most pixels agree on is AP (faces weighted by how squarely the eye sees
+  them). Prisms of greys 74, 100 and 103 alone at three places and five yaws each read
+  0.280-0.301, 0.377-0.409 and 0.391-0.415 (sd 0.004-0.007; albedos 0.290, 0.392, 0.404),
+  against AS's sd 0.018 and A's 0.023-0.047 (docs/perception.md, "A prism's albedo
+  (AP)").
+
 Three more visual measurements were built, measured and dropped (docs/perception.md,
 "Extended features"): the silhouette's metric height over width (R), how far it reaches
 above the top (E) and the median shading gradient (G). Between categories that differ only
@@ -318,6 +332,112 @@ def sphere_albedo(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int
     shade = ambient + diffuse * np.clip(normals @ _unit_vector(light), 0.0, None)
     grey = grey_box[vs[core], us[core]]
     return _unit(float(np.mean(grey / shade)))
+
+
+#: A touch whose normal stands this far from vertical or more (radians) and at most
+#: ``SLOPE_MAX_RAD`` lay on a sloped face: a prism's flank (60 degrees, the simulator's
+#: touches 55-64), never a flat top (0-5) nor a box's side (90); a sphere's probe touches
+#: reach 25 degrees at most (a 5 cm sphere, 1.5 cm probes).
+SLOPE_MIN_RAD: float = math.radians(30.0)
+#: ...and at most this (radians).
+SLOPE_MAX_RAD: float = math.radians(75.0)
+#: ``creased_albedo`` is measured only where the touches' crease TC is at least this (a
+#: ridge crossed; ``MemoryConfig.flat_crease``'s default).
+AP_CREASE: float = 0.5
+#: A face is seen where its normal turns this much or more towards the eye (cosine): a
+#: face seen more edge-on is a sliver of a pixel or two.
+FACE_SEEN: float = 0.05
+#: Two pixels say one albedo where their albedos lie within this share of it: the pixel
+#: noise (0.01) over a dark flank's grey (0.2), with the flanks' tilt as touched (3-4
+#: degrees of noise: 1-2 % of the shading).
+AP_TOLERANCE: float = 0.04
+#: The vote's bins, in log albedo.
+_AP_BIN: float = 0.005
+
+
+def creased_albedo(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, int, int],
+                   readings: Sequence[Sequence[TactileContact]],
+                   eye: Sequence[float] | np.ndarray, position: Sequence[float],
+                   light: Sequence[float], ambient: float,
+                   diffuse: float, ground: float) -> float:
+    """``AP`` of one ROI in [0, 1] (module docstring): the albedo of a prism whose flanks
+    the hand touched, NaN where no touch lay on a sloped face or too little is seen.
+
+    The faces: the touches whose normals stand ``SLOPE_MIN_RAD``-``SLOPE_MAX_RAD`` from
+    vertical lay on a flank. Their mean tilt and the axis of their azimuths (the mean of
+    the doubled angles: the two flanks' azimuths are half a turn apart) give both flanks'
+    normals (a prism's roof is symmetric), and the ends' are horizontal, along that axis's
+    normal (the ridge). A face is seen where its normal turns towards the eye (more than
+    ``FACE_SEEN``); under the known light it reads its albedo times
+    ``ambient + diffuse max(0, n . l)``.
+
+    Which pixel is which face is not needed: every silhouette pixel's grey over each seen
+    face's shading is an albedo it may say, weighted by how squarely the eye sees that face
+    (its share of the silhouette, for faces of about one area: a prism of size s has flanks
+    of s x s / 2 and ends of 0.43 s^2). The albedo most pixels agree on (within
+    ``AP_TOLERANCE``) wins: at the true albedo every face's pixels agree, at a wrong one
+    only one face's. AP is the weighted median of the albedos within the tolerance of it.
+
+    Args:
+        image: The left retina, intensities in [0, 1].
+        mask: The ROI's silhouette inside ``bbox``.
+        bbox: (u0, v0, u1, v1) of the mask, u1/v1 exclusive.
+        readings: The object's pooled touches (``HapticMemory.readings_near``).
+        eye: The left eye's position, robot frame.
+        position: The ROI's stereo position, robot frame.
+        light: Direction towards the light, robot frame (any length).
+        ambient, diffuse: The Phong coefficients of the light.
+        ground: The ground's grey in this retina (``segmentation.background_level``).
+    """
+    pooled = [c for contacts in readings for c in contacts]
+    if not pooled:
+        return math.nan
+    normals = np.stack([_unit_vector(c.normal) for c in pooled])
+    tilt = np.arccos(np.clip(normals[:, 2], -1.0, 1.0))
+    sloped = (tilt >= SLOPE_MIN_RAD) & (tilt <= SLOPE_MAX_RAD)
+    if not sloped.any():
+        return math.nan
+    azimuth = np.arctan2(normals[sloped, 1], normals[sloped, 0])
+    axis = 0.5 * math.atan2(float(np.mean(np.sin(2.0 * azimuth))),
+                            float(np.mean(np.cos(2.0 * azimuth))))
+    t = float(np.mean(tilt[sloped]))
+    across = np.array([math.cos(axis), math.sin(axis), 0.0])
+    along = np.array([-math.sin(axis), math.cos(axis), 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    faces = np.stack([math.sin(t) * across + math.cos(t) * up,
+                      -math.sin(t) * across + math.cos(t) * up, along, -along])
+    view = _unit_vector(np.asarray(eye, float) - np.asarray(position, float))
+    seen = faces @ view
+    faces, seen = faces[seen > FACE_SEEN], seen[seen > FACE_SEEN]
+    if not len(faces):
+        return math.nan
+    shade = ambient + diffuse * np.clip(faces @ _unit_vector(light), 0.0, None)
+    u0, v0, u1, v1 = bbox
+    grey_box = np.asarray(image, float)[v0:v1, u0:u1]
+    m = mask.astype(bool)
+    if not m.any():
+        return math.nan
+    # The object's pixels: those on its side of half-way from the ground's grey to the
+    # ROI's median (a ROI holds a rim of ground; a dark object lies below the ground).
+    half = ground + 0.5 * (float(np.median(grey_box[m])) - ground)
+    grey = grey_box[m & ((grey_box > half) if half >= ground else (grey_box < half))]
+    grey = grey[grey > 0.0]
+    if grey.size < 3:
+        return math.nan
+    albedo = (grey[:, None] / shade[None, :]).ravel()
+    weight = np.broadcast_to(seen[None, :], (grey.size, len(seen))).ravel()
+    log_a = np.log(albedo)
+    lo = float(log_a.min()) - AP_TOLERANCE
+    bins = int(math.ceil((float(log_a.max()) + AP_TOLERANCE - lo) / _AP_BIN)) + 1
+    hist = np.bincount(((log_a - lo) / _AP_BIN).astype(int), weights=weight,
+                       minlength=bins)
+    width = 2 * int(round(AP_TOLERANCE / _AP_BIN)) + 1
+    votes = np.convolve(hist, np.ones(width), mode="same")
+    best = lo + (int(np.argmax(votes)) + 0.5) * _AP_BIN
+    agree = np.abs(log_a - best) <= AP_TOLERANCE
+    order = np.argsort(albedo[agree])
+    cum = np.cumsum(weight[agree][order])
+    return _unit(float(albedo[agree][order][int(np.searchsorted(cum, 0.5 * cum[-1]))]))
 
 
 def visual_features(z_over: float) -> tuple[float]:
