@@ -46,15 +46,15 @@ CALIBRATED_NOISE_DOF: float = 6.32
 #: five shipped worlds (not inspection) and three random ones (worldgen seed 900: plain,
 #: shape_twins, yaw_copies), both policies, seed 0 (docs/memory.md, "Calibration").
 EXTENDED_FEATURE_SCALE: tuple[float, ...] = (
-    0.02630, 0.03939, 0.04737, 0.00527, 0.00590, 0.00554,
-    0.02970, 0.02559, 0.02447, 0.00461, 0.01060, 0.02826,
-    0.01599, 0.01371, 0.01954, 0.00128, 0.00520, 0.02544,
-    0.01966, 0.00457)
+    0.02630, 0.03939, 0.04737, 0.00527, 0.00589, 0.00554,
+    0.02969, 0.02559, 0.02448, 0.00461, 0.01060, 0.02827,
+    0.01599, 0.01371, 0.01954, 0.00128, 0.00521, 0.02547,
+    0.01966, 0.00393)
 EXTENDED_FEATURE_WEIGHT: tuple[float, ...] = (
-    1.517, 1.149, 0.977, 0.504, 0.418, 0.456,
-    0.404, 0.326, 0.048, 1.669, 2.964, 0.502,
-    1.379, 1.551, 1.406, 0.778, 0.171, 0.388,
-    2.391, 1.000)
+    1.545, 1.170, 0.995, 0.514, 0.426, 0.465,
+    0.411, 0.332, 0.048, 1.700, 3.019, 0.511,
+    1.404, 1.579, 1.432, 0.792, 0.172, 0.394,
+    2.434, 0.655)
 EXTENDED_IDENTIFY_DISTANCE: float = 2.30
 #: The extended mode's features that vary with the view: the paper's I, T and S (shading
 #: with bearing, relief with distance, both with yaw) and the fovea's outline O (a prism's
@@ -99,9 +99,9 @@ NEVER_VETO_FEATURES: tuple[str, ...] = (VIEW_DEPENDENT_FEATURES + MISSABLE_FEATU
 #: (1.26 before, a prism's edge reading taken for a curve); now it vetoes.
 EXTENDED_VETO: tuple[float, ...] = (
     1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-    1.0, 1.0, 1.0, 0.0406, 0.0493, 0.2310,
-    1.0, 1.0, 1.0, 0.0252, 0.3615, 1.0,
-    1.0, 0.0349)
+    1.0, 1.0, 1.0, 0.0406, 0.0493, 0.2311,
+    1.0, 1.0, 1.0, 0.0252, 0.3624, 1.0,
+    1.0, 0.0284)
 EXTENDED_NOISE_DOF: float = 4.41
 #: The features that veto between two looks the hand found smooth and flat
 #: (``MemoryConfig.flat_veto``): the fovea's outline O. A flat top's outline is the same

@@ -51,12 +51,13 @@ known eye pose, never the simulator's objects):
   ``AP_CREASE``, with a touch on a sloped face). A prism's brightest flank turns with its
   yaw against the one light, so A and the paper's I and T do (its copies' A 6-25 greys
   apart), and AS is no albedo of it (0.33-0.42 for grey 100). The touches on its flanks
-  report their normals (tilt 55-64 degrees, azimuth the flank's, within 3-4 degrees):
-  they give both flanks' and both ends' normals, and under the known light each face's
-  shading. Each silhouette pixel's grey over each face's shading is an albedo it may
+  report their normals (tilt 55-64 degrees, azimuth the flank's, within 3-4 degrees; a
+  touch near an end edge 20-30 degrees off, which the line of the touches along the ridge
+  sets aside): they give both flanks' and both ends' normals, and under the known light
+  each face's shading. Each silhouette pixel's grey over each face's shading is an albedo it may
   say; the one most pixels agree on is AP (faces weighted by how squarely the eye sees
   them). Prisms of greys 74, 100 and 103 alone at three places and five yaws each read
-  0.280-0.301, 0.377-0.409 and 0.391-0.415 (sd 0.004-0.007; albedos 0.290, 0.392, 0.404),
+  0.280-0.301, 0.384-0.405 and 0.391-0.413 (sd 0.004-0.005; albedos 0.290, 0.392, 0.404),
   against AS's sd 0.018 and A's 0.023-0.047 (docs/perception.md, "A prism's albedo
   (AP)").
 
@@ -351,6 +352,16 @@ FACE_SEEN: float = 0.05
 #: noise (0.01) over a dark flank's grey (0.2), with the flanks' tilt as touched (3-4
 #: degrees of noise: 1-2 % of the shading).
 AP_TOLERANCE: float = 0.04
+#: The ridge's line: touches whose normals stand within this of vertical (radians)...
+RIDGE_TOP_RAD: float = math.radians(10.0)
+#: ...within this of the highest touch (metres)...
+RIDGE_TOP_M: float = 0.003
+#: ...and at least this far apart (metres; closer, their direction is the taxels' noise:
+#: the simulator's ridge touches 2 cm or more apart give the axis within 3 degrees).
+RIDGE_SPAN_M: float = 0.02
+#: The sloped touches agree on the axis across the ridge within this (radians); where
+#: they do not, the ridge line keeps those across it within this.
+AP_AXIS_RAD: float = math.radians(10.0)
 #: The vote's bins, in log albedo.
 _AP_BIN: float = 0.005
 
@@ -398,9 +409,22 @@ def creased_albedo(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, in
     if not sloped.any():
         return math.nan
     azimuth = np.arctan2(normals[sloped, 1], normals[sloped, 0])
-    axis = 0.5 * math.atan2(float(np.mean(np.sin(2.0 * azimuth))),
-                            float(np.mean(np.cos(2.0 * azimuth))))
-    t = float(np.mean(tilt[sloped]))
+    # The axis across the ridge: the sloped touches' azimuths (the mean of the doubled
+    # angles: two flanks' are half a turn apart) where they agree within AP_AXIS_RAD. A
+    # touch near an end edge reports a normal turned 20-30 degrees towards the end: where
+    # they disagree, the line of the touches along the ridge (``_ridge_axis``) keeps the
+    # ones across it, and without that line AP is unknown.
+    kept = np.ones(len(azimuth), bool)
+    axis = _axis_of(azimuth)
+    if np.any(_turn(azimuth, axis) > AP_AXIS_RAD):
+        ridge = _ridge_axis(pooled, tilt)
+        if ridge is None:
+            return math.nan
+        kept = _turn(azimuth, ridge) <= AP_AXIS_RAD
+        if not kept.any():
+            return math.nan
+        axis = _axis_of(azimuth[kept])
+    t = float(np.mean(tilt[sloped][kept]))
     across = np.array([math.cos(axis), math.sin(axis), 0.0])
     along = np.array([-math.sin(axis), math.cos(axis), 0.0])
     up = np.array([0.0, 0.0, 1.0])
@@ -438,6 +462,36 @@ def creased_albedo(image: np.ndarray, mask: np.ndarray, bbox: tuple[int, int, in
     order = np.argsort(albedo[agree])
     cum = np.cumsum(weight[agree][order])
     return _unit(float(albedo[agree][order][int(np.searchsorted(cum, 0.5 * cum[-1]))]))
+
+
+def _axis_of(azimuth: np.ndarray) -> float:
+    """The axis (mod pi) of azimuths that may point either way along it: the mean of the
+    doubled angles, halved (radians)."""
+    return 0.5 * math.atan2(float(np.mean(np.sin(2.0 * azimuth))),
+                            float(np.mean(np.cos(2.0 * azimuth))))
+
+
+def _turn(azimuth: np.ndarray, axis: float) -> np.ndarray:
+    """How far each azimuth lies from the axis, either way along it (radians, <= pi/2)."""
+    return np.abs((azimuth - axis + math.pi / 2) % math.pi - math.pi / 2)
+
+
+def _ridge_axis(contacts: Sequence[TactileContact], tilt: np.ndarray) -> float | None:
+    """The horizontal direction across a ridge the touches ran along (radians), or None:
+    the touches on top (normal within ``RIDGE_TOP_RAD`` of vertical, within
+    ``RIDGE_TOP_M`` of the highest) whose farthest pair lies ``RIDGE_SPAN_M`` apart or more
+    give the ridge's direction; across it is a quarter turn from that."""
+    points = np.array([c.point for c in contacts], float)
+    top = (tilt <= RIDGE_TOP_RAD) & (points[:, 2] >= points[:, 2].max() - RIDGE_TOP_M)
+    xy = points[top, :2]
+    if len(xy) < 2:
+        return None
+    d = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2)
+    i, j = np.unravel_index(int(np.argmax(d)), d.shape)
+    if d[i, j] < RIDGE_SPAN_M:
+        return None
+    along = xy[j] - xy[i]
+    return math.atan2(float(along[1]), float(along[0])) + math.pi / 2
 
 
 def visual_features(z_over: float) -> tuple[float]:
