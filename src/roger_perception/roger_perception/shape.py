@@ -357,7 +357,8 @@ RIDGE_TOP_RAD: float = math.radians(10.0)
 #: ...within this of the highest touch (metres)...
 RIDGE_TOP_M: float = 0.003
 #: ...and at least this far apart (metres; closer, their direction is the taxels' noise:
-#: the simulator's ridge touches 2 cm or more apart give the axis within 3 degrees).
+#: the simulator's ridge touches 2-5 cm apart give the axis within 3-7 degrees, less
+#: surely than two flanks that agree, so the line only arbitrates).
 RIDGE_SPAN_M: float = 0.02
 #: The sloped touches agree on the axis across the ridge within this (radians); where
 #: they do not, the ridge line keeps those across it within this.
